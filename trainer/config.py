@@ -1,0 +1,69 @@
+"""One typed config per training run: saved in every checkpoint and in the exported card."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from .unet import UNetConfig
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    sampler: str
+    embedding: str  # "stratified" or "ot"
+    #: grid sides trained on at once (n = k*k points)
+    sizes: tuple[int, ...] = (8, 16, 32)
+    #: sets per size per step
+    batch_sizes: tuple[int, ...] = (64, 32, 16)
+    #: 0 = fresh sets every step (cheap samplers); > 0 = a fixed pool of that many sets per
+    #: size, generated once from `seed` and cached on disk
+    pool_sizes: tuple[int, ...] = (0, 0, 0)
+    #: symmetries of the square applied at random (0..7, see trainer.embedding.symmetries);
+    #: only those that provably keep the sampler's distribution
+    symmetries: tuple[int, ...] = (0,)
+    #: offsets (cell units) are multiplied by this before diffusion
+    offset_scale: float = 2.0
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    name: str
+    data: DataConfig
+    unet: UNetConfig = field(default_factory=UNetConfig)
+    schedule: dict = field(default_factory=lambda: {
+        "kind": "linear", "beta_start": 1e-4, "beta_end": 0.02, "num_steps": 1000})
+    steps: int = 4000
+    lr: float = 5e-4
+    warmup_steps: int = 100
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    ema_decay: float = 0.995
+    seed: int = 0
+    threads: int = 1
+    checkpoint_every_s: float = 180.0
+    log_every: int = 10
+    #: sampling steps the exported model uses by default
+    default_sample_steps: int = 50
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
+        d = dict(d)
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown config keys {sorted(unknown)}; known: {sorted(known)}")
+        d["data"] = DataConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                  for k, v in d["data"].items()})
+        if "unet" in d:
+            d["unet"] = UNetConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                      for k, v in d["unet"].items()})
+        return cls(**d)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        return cls.from_dict(json.loads(Path(path).read_text()))

@@ -1,0 +1,156 @@
+"""The training loop: loss summed over grid sizes, AdamW, EMA, checkpoints, exact resume."""
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .config import TrainConfig
+from .data import Batches
+from .diffusion import Diffusion
+from .unet import UNet
+
+CHECKPOINT = "checkpoint.pt"
+LOG = "log.csv"
+
+
+def lr_at(cfg: TrainConfig, step: int) -> float:
+    """Linear warm-up then cosine decay to 10 % of the peak."""
+    if step < cfg.warmup_steps:
+        return cfg.lr * (step + 1) / cfg.warmup_steps
+    frac = (step - cfg.warmup_steps) / max(1, cfg.steps - cfg.warmup_steps)
+    return cfg.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, frac))))
+
+
+@torch.no_grad()
+def update_ema(ema: torch.nn.Module, model: torch.nn.Module, decay: float) -> None:
+    for pe, pm in zip(ema.parameters(), model.parameters()):
+        pe.mul_(decay).add_(pm, alpha=1 - decay)
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write atomically so a kill mid-write never leaves a broken checkpoint."""
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def model_from_checkpoint(state: dict[str, Any], ema: bool = True) -> tuple[UNet, TrainConfig]:
+    """Rebuild the (EMA by default) network and its config from a checkpoint dict."""
+    cfg = TrainConfig.from_dict(state["config"])
+    net = UNet(cfg.unet)
+    net.load_state_dict(state["ema" if ema else "model"])
+    net.eval()
+    return net, cfg
+
+
+class Trainer:
+    """Trains one config in ``run_dir``; resumes exactly from ``run_dir/checkpoint.pt``."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: str | Path, progress: bool = True):
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.progress = progress
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.model = UNet(cfg.unet)
+        self.ema = copy.deepcopy(self.model).requires_grad_(False)
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr,
+                                     weight_decay=cfg.weight_decay)
+        self.diffusion = Diffusion(cfg.schedule)
+        self.batches = Batches(cfg.data, cfg.seed, progress)
+        self.rng = np.random.default_rng([cfg.seed, 1])
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step = 0
+        self.elapsed = 0.0
+        ckpt = self.run_dir / CHECKPOINT
+        if ckpt.exists():
+            self._restore(load_checkpoint(ckpt))
+
+    def state(self) -> dict[str, Any]:
+        return {"config": self.cfg.to_dict(), "step": self.step, "elapsed_s": self.elapsed,
+                "model": self.model.state_dict(), "ema": self.ema.state_dict(),
+                "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state,
+                "torch_gen": self.gen.get_state()}
+
+    def _restore(self, st: dict[str, Any]) -> None:
+        if st["config"] != self.cfg.to_dict():
+            raise ValueError(f"{self.run_dir / CHECKPOINT} was written by a different config; "
+                             "use a new run directory")
+        self.model.load_state_dict(st["model"])
+        self.ema.load_state_dict(st["ema"])
+        self.opt.load_state_dict(st["opt"])
+        self.rng.bit_generator.state = st["rng"]
+        self.gen.set_state(st["torch_gen"])
+        self.step = st["step"]
+        self.elapsed = st["elapsed_s"]
+
+    def save(self) -> Path:
+        path = self.run_dir / CHECKPOINT
+        save_checkpoint(path, self.state())
+        return path
+
+    def train_step(self) -> list[float]:
+        """One optimiser step on one batch per grid size; returns the loss per size."""
+        for group in self.opt.param_groups:
+            group["lr"] = lr_at(self.cfg, self.step)
+        self.opt.zero_grad(set_to_none=True)
+        losses = []
+        for x0 in self.batches.draw(self.rng):
+            loss = self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
+            loss.backward()  # summed over sizes: gradients accumulate
+            losses.append(loss.item())
+        torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+        self.opt.step()
+        update_ema(self.ema, self.model, self.cfg.ema_decay)
+        self.step += 1
+        return losses
+
+    def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
+        """Train to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
+        until = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
+        log_path = self.run_dir / LOG
+        new_log = not log_path.exists()
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=until, initial=self.step, desc=self.cfg.name, unit="step")
+        start = time.monotonic()
+        last_ckpt = start
+        with open(log_path, "a", newline="") as fh:
+            log = csv.writer(fh)
+            if new_log:
+                log.writerow(["step", "elapsed_s", "lr", "loss"]
+                             + [f"loss_k{k}" for k in self.cfg.data.sizes])
+            while self.step < until:
+                t0 = time.monotonic()
+                losses = self.train_step()
+                self.elapsed += time.monotonic() - t0
+                if self.step % self.cfg.log_every == 0 or self.step == until:
+                    log.writerow([self.step, f"{self.elapsed:.1f}", f"{lr_at(self.cfg, self.step - 1):.3g}",
+                                  f"{sum(losses):.5f}"] + [f"{l:.5f}" for l in losses])
+                    fh.flush()
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{sum(losses):.4f}")
+                now = time.monotonic()
+                if now - last_ckpt >= self.cfg.checkpoint_every_s:
+                    self.save()
+                    last_ckpt = now
+                if max_seconds is not None and now - start >= max_seconds:
+                    break
+        if bar is not None:
+            bar.close()
+        return self.save()

@@ -1,0 +1,188 @@
+"""A DDPM U-Net for offset grids of any side k >= 4 (odd sides included).
+
+ResNet blocks with GroupNorm and a sinusoidal time embedding, optional multi-head
+self-attention per level, stride-2 convolutions down (ceil(k/2)) and nearest-neighbour
+resampling back up to each skip's exact size, so any k works. Architecture only: the
+diffusion maths lives in :mod:`trainer.diffusion`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+PADDINGS = ("zeros", "circular")
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    """Architecture settings; saved in checkpoints and in the exported model card."""
+
+    base_channels: int = 32
+    channel_mult: tuple[int, ...] = (1, 2, 2)
+    num_res_blocks: int = 2
+    #: levels (0 = full resolution) whose res blocks are followed by self-attention.
+    #: The seed paper put attention at every level; full-resolution attention is what
+    #: makes large grids slow, so the default keeps it to the coarsest level.
+    attention_levels: tuple[int, ...] = (2,)
+    middle_attention: bool = True
+    num_heads: int = 4
+    padding: str = "zeros"
+    #: extra input channels: bits 0..coord_bits-1 of each cell's column and row index,
+    #: as +-1, telling the net where a cell sits in the dyadic hierarchy (net structure).
+    coord_bits: int = 0
+    groups: int = 8
+
+    def __post_init__(self) -> None:
+        if self.padding not in PADDINGS:
+            raise ValueError(f"padding must be one of {PADDINGS}, got {self.padding!r}")
+        if any(not 0 <= l < len(self.channel_mult) for l in self.attention_levels):
+            raise ValueError(f"attention_levels {self.attention_levels} outside "
+                             f"0..{len(self.channel_mult) - 1}")
+        object.__setattr__(self, "channel_mult", tuple(self.channel_mult))
+        object.__setattr__(self, "attention_levels", tuple(self.attention_levels))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def timestep_embedding(t: torch.Tensor, dim: int, max_period: float = 10000.0) -> torch.Tensor:
+    """Sinusoidal embedding of (B,) float timesteps -> (B, dim)."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, dtype=torch.float32,
+                                                           device=t.device) / half)
+    args = t.float()[:, None] * freqs[None, :]
+    return torch.cat([torch.cos(args), torch.sin(args)], dim=1)
+
+
+def _conv(cin: int, cout: int, padding: str, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, 3, stride=stride, padding=1, padding_mode=padding)
+
+
+class ResBlock(nn.Module):
+    def __init__(self, cin: int, cout: int, temb: int, padding: str, groups: int):
+        super().__init__()
+        self.norm1 = nn.GroupNorm(groups, cin)
+        self.conv1 = _conv(cin, cout, padding)
+        self.temb = nn.Linear(temb, cout)
+        self.norm2 = nn.GroupNorm(groups, cout)
+        self.conv2 = _conv(cout, cout, padding)
+        nn.init.zeros_(self.conv2.weight)  # start as identity: stabilises early training
+        nn.init.zeros_(self.conv2.bias)
+        self.skip = nn.Conv2d(cin, cout, 1) if cin != cout else nn.Identity()
+
+    def forward(self, x: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
+        h = self.conv1(F.silu(self.norm1(x)))
+        h = h + self.temb(F.silu(emb))[:, :, None, None]
+        h = self.conv2(F.silu(self.norm2(h)))
+        return self.skip(x) + h
+
+
+class Attention(nn.Module):
+    """Multi-head self-attention over all cells of the grid."""
+
+    def __init__(self, ch: int, heads: int, groups: int):
+        super().__init__()
+        self.heads = heads
+        self.norm = nn.GroupNorm(groups, ch)
+        self.qkv = nn.Conv2d(ch, 3 * ch, 1)
+        self.proj = nn.Conv2d(ch, ch, 1)
+        nn.init.zeros_(self.proj.weight)
+        nn.init.zeros_(self.proj.bias)
+
+    def forward(self, x: torch.Tensor, emb: torch.Tensor | None = None) -> torch.Tensor:
+        b, c, h, w = x.shape
+        qkv = self.qkv(self.norm(x)).reshape(b, 3, self.heads, c // self.heads, h * w)
+        q, k, v = qkv[:, 0], qkv[:, 1], qkv[:, 2]  # (b, heads, d, hw)
+        scale = (c // self.heads) ** -0.5
+        attn = torch.softmax(torch.einsum("bndi,bndj->bnij", q * scale, k), dim=-1)
+        out = torch.einsum("bnij,bndj->bndi", attn, v).reshape(b, c, h, w)
+        return x + self.proj(out)
+
+
+class UNet(nn.Module):
+    """eps-prediction U-Net: (B, 2, k, k) noisy offsets and (B,) timesteps -> (B, 2, k, k)."""
+
+    def __init__(self, cfg: UNetConfig):
+        super().__init__()
+        self.cfg = cfg
+        ch = cfg.base_channels
+        temb = 4 * ch
+        self.time_mlp = nn.Sequential(nn.Linear(ch, temb), nn.SiLU(), nn.Linear(temb, temb))
+        self.stem = _conv(2 + 4 * cfg.coord_bits, ch, cfg.padding)
+        blk = dict(temb=temb, padding=cfg.padding, groups=cfg.groups)
+
+        self.down = nn.ModuleList()
+        skips = [ch]
+        cur = ch
+        for level, mult in enumerate(cfg.channel_mult):
+            for _ in range(cfg.num_res_blocks):
+                layers = [ResBlock(cur, ch * mult, **blk)]
+                cur = ch * mult
+                if level in cfg.attention_levels:
+                    layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                self.down.append(nn.ModuleList(layers))
+                skips.append(cur)
+            if level < len(cfg.channel_mult) - 1:
+                self.down.append(nn.ModuleList([_conv(cur, cur, cfg.padding, stride=2)]))
+                skips.append(cur)
+
+        self.middle = nn.ModuleList([ResBlock(cur, cur, **blk)]
+                                    + ([Attention(cur, cfg.num_heads, cfg.groups)]
+                                       if cfg.middle_attention else [])
+                                    + [ResBlock(cur, cur, **blk)])
+
+        self.up = nn.ModuleList()
+        for level, mult in reversed(list(enumerate(cfg.channel_mult))):
+            for i in range(cfg.num_res_blocks + 1):
+                layers = [ResBlock(cur + skips.pop(), ch * mult, **blk)]
+                cur = ch * mult
+                if level in cfg.attention_levels:
+                    layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                if level > 0 and i == cfg.num_res_blocks:
+                    layers.append(_conv(cur, cur, cfg.padding))  # after upsampling
+                self.up.append(nn.ModuleList(layers))
+        self.out_norm = nn.GroupNorm(cfg.groups, cur)
+        self.out = _conv(cur, 2, cfg.padding)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def _coords(self, x: torch.Tensor) -> torch.Tensor:
+        b, _, h, w = x.shape
+        # float floor/remainder rather than integer shifts: they export to ONNX
+        scale = 2.0 ** torch.arange(self.cfg.coord_bits, device=x.device, dtype=torch.float32)
+
+        def bits(n: int) -> torch.Tensor:  # (coord_bits, n) of +-1
+            i = torch.arange(n, device=x.device, dtype=torch.float32)
+            return torch.remainder(torch.floor(i[None, :] / scale[:, None]), 2.0) * 2 - 1
+
+        col, row = bits(w), bits(h)
+        cols = col[:, None, :].expand(-1, h, -1)
+        rows = row[:, :, None].expand(-1, -1, w)
+        # for both orientations so a transposed grid sees the same kind of input
+        grid = torch.cat([cols, rows, cols * rows, -cols * rows], dim=0)
+        return grid[None].expand(b, -1, -1, -1)
+
+    def forward(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        emb = self.time_mlp(timestep_embedding(t, self.cfg.base_channels))
+        if self.cfg.coord_bits:
+            x = torch.cat([x, self._coords(x)], dim=1)
+        h = self.stem(x)
+        hs = [h]
+        for layers in self.down:
+            for layer in layers:
+                h = layer(h, emb) if not isinstance(layer, nn.Conv2d) else layer(h)
+            hs.append(h)
+        for layer in self.middle:
+            h = layer(h, emb)
+        for layers in self.up:
+            h = torch.cat([h, hs.pop()], dim=1)
+            for layer in layers:
+                if isinstance(layer, nn.Conv2d):  # upsample to the next skip's exact size
+                    h = layer(F.interpolate(h, size=hs[-1].shape[-2:], mode="nearest"))
+                else:
+                    h = layer(h, emb)
+        return self.out(F.silu(self.out_norm(h)))
