@@ -19,6 +19,16 @@ def cell_centres(k: int) -> np.ndarray:
     return np.stack([cx.ravel(), cy.ravel()], axis=1)
 
 
+def _cell_bounds(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest float64 x with floor(x * k) == cell index, per cell."""
+    col = np.arange(k, dtype=np.float64)
+    lo, hi = col / k, np.nextafter((col + 1) / k, 0.0)
+    for _ in range(4):  # a few ulps of rounding in x * k at most
+        lo = np.where(np.floor(lo * k) < col, np.nextafter(lo, 1.0), lo)
+        hi = np.where(np.floor(hi * k) > col, np.nextafter(hi, 0.0), hi)
+    return lo, hi
+
+
 def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
     """Offsets (..., 2, k, k) in cell units -> points (..., k*k, 2) in [0, 1)^2, float64.
 
@@ -36,9 +46,8 @@ def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
     x = (grid[..., 0, :, :] + centre[None, :]) / k
     y = (grid[..., 1, :, :] + centre[:, None]) / k
     if stratified:
-        # a point on its cell's upper edge would belong to the next cell: keep it inside
-        top = np.nextafter((centre + 0.5) / k, 0.0)
-        x = np.minimum(x, top[None, :])
-        y = np.minimum(y, top[:, None])
+        lo, hi = _cell_bounds(k)
+        x = np.clip(x, lo[None, :], hi[None, :])
+        y = np.clip(y, lo[:, None], hi[:, None])
     pts = np.stack([x, y], axis=-1).reshape(grid.shape[:-3] + (k * k, 2))
     return np.clip(pts, 0.0, _BELOW_ONE)

@@ -1,0 +1,52 @@
+"""The model card: the JSON metadata every diffsampler ONNX file carries.
+
+Models are data: one generic runtime reads everything model-specific (embedding, noise
+schedule, offset scale, default steps, provenance) from here.
+"""
+from __future__ import annotations
+
+import json
+from typing import Any, Mapping
+
+from .errors import ModelFormatError
+from .schedule import betas
+
+FORMAT_KEY = "diffsampler.format"
+CARD_KEY = "diffsampler.card"
+FORMAT_VERSION = 1
+
+#: card fields the runtime relies on, with their types
+REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str,
+            "offset_scale": (int, float), "prediction": str, "schedule": dict,
+            "training_steps": int, "trained_sizes": list, "default_steps": int,
+            "min_side": int}
+
+
+def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
+    """Validate the ONNX custom metadata of ``source`` and return its card."""
+    if CARD_KEY not in meta:
+        raise ModelFormatError(f"{source} is an ONNX model without a diffsampler model card "
+                               f"(metadata key {CARD_KEY!r}); export it with `python -m export`")
+    try:
+        card = json.loads(meta[CARD_KEY])
+    except json.JSONDecodeError as exc:
+        raise ModelFormatError(f"{source}: model card is not valid JSON ({exc})") from None
+    if not isinstance(card, dict):
+        raise ModelFormatError(f"{source}: model card must be a JSON object")
+    version = card.get("format_version")
+    if version != FORMAT_VERSION:
+        raise ModelFormatError(f"{source}: model card format {version!r} is not supported "
+                               f"(this runtime reads format {FORMAT_VERSION})")
+    for key, typ in REQUIRED.items():
+        if not isinstance(card.get(key), typ) or isinstance(card.get(key), bool):
+            raise ModelFormatError(f"{source}: model card field {key!r} is missing or has the "
+                                   f"wrong type ({card.get(key)!r})")
+    if card["embedding"] not in ("stratified", "ot"):
+        raise ModelFormatError(f"{source}: unknown embedding {card['embedding']!r}")
+    if card["prediction"] != "eps":
+        raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
+    try:
+        betas(card["schedule"])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ModelFormatError(f"{source}: invalid noise schedule {card['schedule']!r} ({exc})") from None
+    return card

@@ -1,0 +1,200 @@
+"""Loading diffsampler ONNX models and generating point sets with them."""
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from . import _validate
+from ._progress import Progress
+from .card import parse_card
+from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
+from .grid import decode
+from .schedule import alphas_cumprod, timesteps
+from .solvers import SOLVERS, ddim
+
+MODELS_DIR = Path(__file__).parent / "models"
+#: points evaluated per onnxruntime call when generating many sets
+POINTS_PER_BATCH = 32 * 1024
+
+
+def bundled_models() -> list[str]:
+    """Names of the models shipped with the package (``diffsampler_rt/models/*.onnx``)."""
+    return sorted(p.stem for p in MODELS_DIR.glob("*.onnx"))
+
+
+def resolve(model: str | os.PathLike) -> Path:
+    """A bundled model name or a path to an ``.onnx`` file -> an existing path."""
+    if not isinstance(model, (str, os.PathLike)):
+        raise TypeError(f"model must be a bundled model name or a path, got {model!r}")
+    text = os.fspath(model)
+    path = Path(text)
+    if path.is_file():
+        return path.resolve()
+    if text in bundled_models():
+        return MODELS_DIR / f"{text}.onnx"
+    if path.suffix == ".onnx" or os.sep in text or "/" in text:
+        raise ModelNotFoundError(f"model file {text!r} does not exist")
+    raise UnknownModelError(f"unknown model {text!r}; bundled models: "
+                            f"{', '.join(bundled_models()) or '(none)'}, or give a path to an "
+                            ".onnx file")
+
+
+class Model:
+    """A loaded diffsampler model: an onnxruntime session plus its model card.
+
+    Parameters
+    ----------
+    model : str or path-like
+        A bundled model name (see :func:`diffsampler_rt.list_models`) or an ``.onnx`` path.
+    threads : int, optional
+        onnxruntime intra-op threads (default: onnxruntime's choice, all cores).
+
+    Examples
+    --------
+    >>> import diffsampler_rt
+    >>> m = diffsampler_rt.load("rank1")
+    >>> m.card["embedding"]
+    'ot'
+    >>> m.generate(64, count=2, seed=0).shape
+    (2, 64, 2)
+    """
+
+    def __init__(self, model: str | os.PathLike, *, threads: int | None = None):
+        self.path = resolve(model)
+        opts = ort.SessionOptions()
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.inter_op_num_threads = 1
+        if threads is not None:
+            opts.intra_op_num_threads = _validate.integer("threads", threads)
+        try:
+            self.session = ort.InferenceSession(str(self.path), sess_options=opts,
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own non-standard exception types
+            raise ModelFormatError(f"{self.path} is not a readable ONNX model: "
+                                   f"{str(exc).splitlines()[0][:200]}") from None
+        meta = self.session.get_modelmeta().custom_metadata_map
+        self.card: dict[str, Any] = parse_card(meta, str(self.path))
+        names = {i.name for i in self.session.get_inputs()}
+        if names != {"x", "t"}:
+            raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")
+        self.alpha_bar = alphas_cumprod(self.card["schedule"])
+
+    @property
+    def name(self) -> str:
+        return self.card["name"]
+
+    def __repr__(self) -> str:
+        return (f"Model({self.name!r}, sampler={self.card['sampler']!r}, "
+                f"trained_sizes={self.card['trained_sizes']})")
+
+    def denoise(self, x: np.ndarray, t: int) -> np.ndarray:
+        """eps prediction for a batch x (B, 2, k, k) at timestep index t (float64 out)."""
+        tt = np.full(x.shape[0], float(t), dtype=np.float32)
+        eps = self.session.run(["eps"], {"x": x.astype(np.float32), "t": tt})[0]
+        return eps.astype(np.float64)
+
+    def generate(self, n: int, count: int | None = None, *,
+                 seed: int | np.random.Generator | None = None, steps: int | None = None,
+                 solver: str = "ddim", progress: bool = False) -> np.ndarray:
+        """Generate point sets of ``n`` points with this model.
+
+        Parameters
+        ----------
+        n : int
+            Points per set: a perfect square >= 16 (k*k points on a k x k grid).
+        count : int, optional
+            Number of sets. ``None`` returns one set of shape (n, 2).
+        seed : int or numpy.random.Generator, optional
+            The same seed gives the same sets.
+        steps : int, optional
+            Denoiser evaluations (default: the model card's ``default_steps``).
+        solver : {"ddim", "ddpm"}
+            Deterministic DDIM, or ancestral DDPM sampling on the same step grid.
+        progress : bool
+            Show a progress bar on stderr.
+
+        Returns
+        -------
+        numpy.ndarray
+            float64, shape (n, 2) or (count, n, 2), every point in [0, 1)^2.
+        """
+        k = _validate.num_points(n)
+        c = 1 if count is None else _validate.count(count)
+        T = len(self.alpha_bar)
+        s = self.card["default_steps"] if steps is None else _validate.steps(steps, T)
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
+        rng = _validate.rng(seed)
+        ts = timesteps(T, min(s, T))
+        # one child stream per set: results do not depend on how sets are batched
+        streams = rng.spawn(c)
+        per_batch = max(1, POINTS_PER_BATCH // (k * k))
+        out = np.empty((c, k * k, 2))
+        bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
+        for start in range(0, c, per_batch):
+            sub = streams[start:start + per_batch]
+            x = np.stack([g.standard_normal((2, k, k)) for g in sub])
+
+            def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
+                return np.stack([g.standard_normal(shape[1:]) for g in sub])
+
+            x = ddim(self.denoise, x, self.alpha_bar, ts, eta=SOLVERS[solver], noise=noise)
+            grid = x / float(self.card["offset_scale"])
+            out[start:start + len(sub)] = decode(
+                grid, stratified=self.card["embedding"] == "stratified")
+            bar.update(len(sub))
+        return out[0] if count is None else out
+
+
+@lru_cache(maxsize=16)
+def _cached(path: str, mtime: float) -> Model:
+    return Model(path)
+
+
+def load(model: str | os.PathLike | Model) -> Model:
+    """Load (and cache) a model by bundled name or ``.onnx`` path.
+
+    Examples
+    --------
+    >>> import diffsampler_rt
+    >>> diffsampler_rt.load("sobol_owen").card["sampler"]
+    'sobol_owen'
+    """
+    if isinstance(model, Model):
+        return model
+    path = resolve(model)
+    return _cached(str(path), path.stat().st_mtime)
+
+
+def generate(model: str | os.PathLike | Model, n: int, count: int | None = None, *,
+             seed: int | np.random.Generator | None = None, steps: int | None = None,
+             solver: str = "ddim", progress: bool = False) -> np.ndarray:
+    """Generate ``count`` point sets of ``n`` points from a learned sampler.
+
+    Parameters
+    ----------
+    model : str, path-like or Model
+        A bundled model name (``diffsampler_rt.list_models()``) or a path to an ``.onnx``
+        file exported by diffsampler.
+    n, count, seed, steps, solver, progress
+        See :meth:`Model.generate`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 array (n, 2), or (count, n, 2) when ``count`` is given, in [0, 1)^2.
+
+    Examples
+    --------
+    >>> import diffsampler_rt
+    >>> pts = diffsampler_rt.generate("rank1", 576, seed=1)
+    >>> pts.shape, bool(((pts >= 0) & (pts < 1)).all())
+    ((576, 2), True)
+    """
+    return load(model).generate(n, count, seed=seed, steps=steps, solver=solver,
+                                progress=progress)

@@ -1,0 +1,45 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+REFERENCE_CSV = SHARED / "reference" / "radial_spectra_original_n1024.csv"
+
+TINY_UNET = dict(base_channels=8, channel_mult=(1, 2), num_res_blocks=1, attention_levels=(1,),
+                 middle_attention=True, num_heads=2, groups=4)
+
+
+def tiny_config(name: str = "tiny", sampler: str = "sobol_owen", embedding: str = "stratified",
+                **unet):
+    from trainer.config import DataConfig, TrainConfig
+    from trainer.unet import UNetConfig
+
+    return TrainConfig(
+        name=name,
+        data=DataConfig(sampler=sampler, embedding=embedding, sizes=(4, 8), batch_sizes=(4, 2),
+                        pool_sizes=(0, 0)),
+        unet=UNetConfig(**{**TINY_UNET, **unet}), steps=6, warmup_steps=2,
+        checkpoint_every_s=1e9, log_every=1, default_sample_steps=5)
+
+
+@pytest.fixture(scope="session")
+def tiny_onnx(tmp_path_factory) -> Path:
+    """A small randomly initialised U-Net exported with a valid model card (fp16 weights)."""
+    torch = pytest.importorskip("torch")
+    from export.onnx_export import export_model, model_card, round_to_fp16
+    from trainer.unet import UNet
+
+    torch.manual_seed(0)
+    cfg = tiny_config(coord_bits=2)
+    net = UNet(cfg.unet).eval()
+    with torch.no_grad():  # the U-Net zero-initialises its output layers: make it non-trivial
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    round_to_fp16(net)
+    path = tmp_path_factory.mktemp("onnx") / "tiny.onnx"
+    export_model(net, model_card(cfg, training_steps=0), path, fp16_weights=True)
+    path.with_suffix(".pt").write_bytes(b"")  # marker only
+    torch.save(net.state_dict(), path.with_suffix(".state"))
+    return path

@@ -1,0 +1,63 @@
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from diffsampler_rt.cli import main
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "diffsampler_rt", *args],
+                          capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("fmt", ["txt", "npy", "csv"])
+def test_generate_formats(tmp_path, fmt):
+    out = tmp_path / f"pts.{fmt}"
+    assert main(["generate", "rank1", "64", "--count", "8", "--seed", "1", "--steps", "4",
+                 "-o", str(out)]) == 0
+    if fmt == "npy":
+        pts = np.load(out)
+    elif fmt == "txt":
+        pts = np.loadtxt(out).reshape(8, 64, 2)
+    else:
+        raw = np.loadtxt(out, delimiter=",", skiprows=1)
+        assert np.array_equal(raw[:, 0], np.repeat(np.arange(8), 64))
+        pts = raw[:, 1:].reshape(8, 64, 2)
+    ref = __import__("diffsampler_rt").generate("rank1", 64, count=8, seed=1, steps=4)
+    np.testing.assert_array_equal(pts, ref)  # repr() round-trips float64 exactly
+
+
+def test_generate_to_stdout(capsys):
+    assert main(["generate", "sobol_owen", "16", "--seed", "0", "--steps", "3"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 16 and all(len(l.split()) == 2 for l in lines)
+
+
+def test_list_and_info(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "rank1" in out and "sobol_owen" in out
+    assert main(["info", "rank1"]) == 0
+    assert '"sampler": "rank1"' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args,match", [
+    (["generate", "rank1", "17"], "nearest valid sizes: 16 or 25"),
+    (["generate", "rank1", "0"], "n must be positive"),
+    (["generate", "rank1", "abc"], "invalid int value: 'abc'"),
+    (["generate", "nosuchmodel", "64"], "unknown model 'nosuchmodel'"),
+    (["generate", "missing/model.onnx", "64"], "does not exist"),
+    (["generate", "rank1", "64", "--steps", "0"], "steps must be between"),
+    (["generate", "rank1", "64", "--format", "xml"], "invalid choice: 'xml'"),
+    (["info", "nosuchmodel"], "unknown model"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_bad_input_exits_2_with_one_line(args, match):
+    res = run(*args)
+    assert res.returncode == 2
+    assert res.stdout == ""
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert __import__("re").search(match, lines[0]), lines[0]

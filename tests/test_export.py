@@ -1,0 +1,95 @@
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+onnx = pytest.importorskip("onnx")
+
+import diffsampler_rt  # noqa: E402
+from diffsampler_rt.card import CARD_KEY  # noqa: E402
+from diffsampler_rt.schedule import alphas_cumprod  # noqa: E402
+from export import ParityError, check_parity  # noqa: E402
+from trainer.diffusion import Diffusion  # noqa: E402
+from trainer.unet import UNet  # noqa: E402
+
+from .conftest import tiny_config  # noqa: E402
+
+
+def _tiny_net(path):
+    net = UNet(tiny_config(coord_bits=2).unet).eval()
+    net.load_state_dict(torch.load(path.with_suffix(".state")))
+    return net
+
+
+def test_parity_at_trained_unseen_and_odd_sides(tiny_onnx):
+    diffs = check_parity(_tiny_net(tiny_onnx), tiny_onnx, sides=(8, 24, 25, 32, 64),
+                         tolerance=1e-4)
+    assert set(diffs) == {8, 24, 25, 32, 64}
+    assert max(diffs.values()) < 1e-4
+
+
+def test_parity_check_fails_loudly(tiny_onnx):
+    net = _tiny_net(tiny_onnx)
+    with torch.no_grad():
+        net.out.bias.add_(1e-2)
+    with pytest.raises(ParityError, match="k=8: max"):
+        check_parity(net, tiny_onnx, sides=(8,), tolerance=1e-4)
+
+
+def test_dynamic_batch_and_side(tiny_onnx):
+    import onnxruntime as ort
+    sess = ort.InferenceSession(str(tiny_onnx))
+    x, t = sess.get_inputs()
+    assert x.shape[0] == t.shape[0] and isinstance(x.shape[0], str)
+    assert isinstance(x.shape[2], str) and x.shape[2] == x.shape[3]
+    for b, k in [(1, 4), (5, 13)]:
+        out = sess.run(None, {"x": np.zeros((b, 2, k, k), np.float32),
+                              "t": np.zeros(b, np.float32)})[0]
+        assert out.shape == (b, 2, k, k)
+
+
+def test_self_contained_file_with_card(tiny_onnx):
+    assert not tiny_onnx.with_suffix(".onnx.data").exists()
+    model = onnx.load(str(tiny_onnx))
+    props = {p.key: p.value for p in model.metadata_props}
+    card = json.loads(props[CARD_KEY])
+    for key in ("format_version", "sampler", "schedule", "training_steps", "trained_sizes",
+                "embedding", "offset_scale", "padding", "licence", "provenance", "weights"):
+        assert key in card, key
+    assert card["weights"] == "fp16"
+    assert card["trained_sizes"] == [16, 64]
+
+
+def test_runtime_reads_exported_model(tiny_onnx):
+    m = diffsampler_rt.load(tiny_onnx)
+    assert m.card["sampler"] == "sobol_owen"
+    pts = m.generate(49, count=2, seed=0, steps=3)
+    assert pts.shape == (2, 49, 2) and np.all((pts >= 0) & (pts < 1))
+
+
+def test_runtime_and_trainer_share_the_schedule():
+    for spec in ({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02, "num_steps": 1000},
+                 {"kind": "cosine", "num_steps": 500}):
+        np.testing.assert_array_equal(Diffusion(spec).alpha_bar.numpy(),
+                                      alphas_cumprod(spec).astype(np.float32))
+
+
+def test_runtime_loop_matches_a_torch_reference_loop(tiny_onnx):
+    """The numpy DDIM loop over onnxruntime equals the same loop written in torch."""
+    m = diffsampler_rt.load(tiny_onnx)
+    net = _tiny_net(tiny_onnx)
+    from diffsampler_rt.schedule import timesteps
+    ab = alphas_cumprod(m.card["schedule"])
+    ts = timesteps(len(ab), 4)
+    x0 = np.random.default_rng(5).standard_normal((1, 2, 6, 6))
+    x = torch.tensor(x0, dtype=torch.float64)
+    for i, t in enumerate(ts):
+        with torch.no_grad():
+            eps = net(x.float(), torch.tensor([float(t)])).double()
+        a, ap = ab[t], (ab[ts[i + 1]] if i + 1 < len(ts) else 1.0)
+        pred = (x - np.sqrt(1 - a) * eps) / np.sqrt(a)
+        x = np.sqrt(ap) * pred + np.sqrt(1 - ap) * eps
+    from diffsampler_rt.solvers import ddim
+    got = ddim(m.denoise, x0, ab, ts)
+    np.testing.assert_allclose(got, x.numpy(), atol=1e-4)

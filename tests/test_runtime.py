@@ -1,0 +1,137 @@
+import math
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import (ModelFormatError, ModelNotFoundError, UnknownModelError, generate,
+                            list_models, load)
+from diffsampler_rt._validate import MAX_POINTS
+
+
+def test_bundled_models_present():
+    assert {"rank1", "sobol_owen"} <= set(list_models())
+
+
+@pytest.mark.parametrize("name", ["rank1", "sobol_owen"])
+@pytest.mark.parametrize("n", [16, 64, 576, 625])
+def test_bundled_models_generate(name, n):
+    pts = generate(name, n, seed=1, steps=4)
+    assert pts.shape == (n, 2) and pts.dtype == np.float64
+    assert np.all(np.isfinite(pts)) and np.all((pts >= 0) & (pts < 1))
+
+
+def test_count_and_determinism():
+    a = generate("rank1", 64, count=3, seed=11, steps=5)
+    assert a.shape == (3, 64, 2)
+    np.testing.assert_array_equal(a, generate("rank1", 64, count=3, seed=11, steps=5))
+    assert not np.array_equal(a, generate("rank1", 64, count=3, seed=12, steps=5))
+    g = np.random.default_rng(11)
+    np.testing.assert_array_equal(a, generate("rank1", 64, count=3, seed=g, steps=5))
+
+
+def test_sets_do_not_depend_on_batching(monkeypatch):
+    from diffsampler_rt import model
+    a = generate("rank1", 64, count=4, seed=3, steps=3)
+    monkeypatch.setattr(model, "POINTS_PER_BATCH", 64)  # one set per onnxruntime call
+    np.testing.assert_allclose(a, generate("rank1", 64, count=4, seed=3, steps=3), atol=1e-6)
+
+
+def test_ddpm_solver_is_seeded():
+    a = generate("rank1", 64, seed=2, steps=4, solver="ddpm")
+    np.testing.assert_array_equal(a, generate("rank1", 64, seed=2, steps=4, solver="ddpm"))
+    assert not np.array_equal(a, generate("rank1", 64, seed=2, steps=4))
+
+
+def test_stratified_model_keeps_one_point_per_cell():
+    pts = generate("sobol_owen", 576, seed=0, steps=4)
+    cell = np.floor(pts * 24).astype(int)
+    assert np.unique(cell[:, 1] * 24 + cell[:, 0]).size == 576
+
+
+def test_load_returns_reusable_model_with_card():
+    m = load("sobol_owen")
+    assert m is load("sobol_owen")  # cached
+    for key in ("sampler", "schedule", "trained_sizes", "training_steps", "licence"):
+        assert key in m.card
+    assert m.generate(64, seed=0, steps=3).shape == (64, 2)
+
+
+@pytest.mark.parametrize("n,exc,match", [
+    (0, ValueError, "n must be positive, got 0"),
+    (-5, ValueError, "got -5"),
+    (15, ValueError, "nearest valid sizes: 16"),
+    (17, ValueError, "n=17 .* nearest valid sizes: 16 or 25"),
+    (1000, ValueError, "961 or 1024"),
+    (MAX_POINTS + 1, ValueError, "too large"),
+    (10**12, ValueError, "too large"),
+    (576.0, TypeError, "n must be an integer, got 576.0"),
+    ("64", TypeError, "got '64'"),
+    (True, TypeError, "got True"),
+])
+def test_bad_n(n, exc, match):
+    with pytest.raises(exc, match=match):
+        generate("rank1", n)
+
+
+@pytest.mark.parametrize("kwargs,exc,match", [
+    (dict(steps=0), ValueError, "steps must be between 1 and 1000.*got 0"),
+    (dict(steps=-3), ValueError, "got -3"),
+    (dict(steps=1001), ValueError, "got 1001"),
+    (dict(steps=2.5), TypeError, "steps must be an integer"),
+    (dict(count=0), ValueError, "count must be >= 1, got 0"),
+    (dict(seed=-1), ValueError, "seed must be a non-negative integer, got -1"),
+    (dict(seed="x"), TypeError, "seed must be an integer"),
+    (dict(solver="euler"), ValueError, "unknown solver 'euler'"),
+])
+def test_bad_arguments(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        generate("rank1", 64, **kwargs)
+
+
+def test_bad_models(tmp_path):
+    with pytest.raises(UnknownModelError, match="unknown model 'gbnx'.*rank1"):
+        load("gbnx")
+    with pytest.raises(ModelNotFoundError, match="missing.onnx"):
+        load(tmp_path / "missing.onnx")
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(b"not an onnx file at all")
+    with pytest.raises(ModelFormatError, match="not a readable ONNX model"):
+        load(corrupt)
+    with pytest.raises(TypeError, match="model must be"):
+        load(3)
+    # errors subclass the built-ins users already catch
+    assert issubclass(UnknownModelError, ValueError)
+    assert issubclass(ModelNotFoundError, FileNotFoundError)
+
+
+def test_onnx_without_card(tmp_path):
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["eps"])], "g",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, None)],
+                              [helper.make_tensor_value_info("eps", TensorProto.FLOAT, None)])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 19)], ir_version=9)
+    path = tmp_path / "plain.onnx"
+    onnx.save(model, str(path))
+    with pytest.raises(ModelFormatError, match="without a diffsampler model card"):
+        load(path)
+
+
+def test_card_validation():
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    good = dict(load("rank1").card)
+    with pytest.raises(ModelFormatError, match="format 99"):
+        parse_card({CARD_KEY: __import__("json").dumps({**good, "format_version": 99})}, "m")
+    with pytest.raises(ModelFormatError, match="schedule"):
+        parse_card({CARD_KEY: __import__("json").dumps({**good, "schedule": {"kind": "x",
+                                                                             "num_steps": 3}})}, "m")
+    with pytest.raises(ModelFormatError, match="not valid JSON"):
+        parse_card({CARD_KEY: "{"}, "m")
+
+
+def test_docstring_examples():
+    import doctest
+    from diffsampler_rt import model
+    assert doctest.testmod(model).failed == 0
+    assert doctest.testmod(diffsampler_rt).failed == 0

@@ -1,0 +1,66 @@
+import numpy as np
+import pytest
+
+from trainer.samplers import SAMPLERS, sample
+from trainer.samplers.lattice import korobov, maxmin_generator
+from trainer.samplers.sobol_owen import sobol_digits
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLERS))
+@pytest.mark.parametrize("n", [16, 64, 100, 1024])
+def test_contract(name, n):
+    pts = sample(name, n, count=3, seed=7)
+    assert pts.shape == (3, n, 2) and pts.dtype == np.float64
+    assert np.all(pts >= 0) and np.all(pts < 1)
+    np.testing.assert_array_equal(pts, sample(name, n, count=3, seed=7))
+    assert not np.array_equal(pts, sample(name, n, count=3, seed=8))
+
+
+@pytest.mark.parametrize("m", [2, 4, 7, 10, 12])
+def test_owen_sets_are_0m2_nets(m):
+    n = 1 << m
+    for pts in sample("sobol_owen", n, count=4, seed=m):
+        for a in range(m + 1):
+            b = m - a
+            cell = np.floor(pts[:, 0] * 2**a).astype(int) * 2**b + np.floor(pts[:, 1] * 2**b).astype(int)
+            assert np.unique(cell).size == n, f"elementary interval 2^-{a} x 2^-{b} not filled"
+
+
+def test_unscrambled_sobol_is_the_known_sequence():
+    x = sobol_digits(8).astype(float) / 2**32
+    np.testing.assert_array_equal(x[:, 0], [0, .5, .25, .75, .125, .625, .375, .875])
+    # direction numbers 1/2, 3/4, 5/8 (m = 1, 3, 5), natural (not Gray-code) order
+    np.testing.assert_array_equal(x[:, 1], [0, .5, .75, .25, .625, .125, .375, .875])
+
+
+def test_owen_scramble_is_nonlinear_and_uniform():
+    pts = sample("sobol_owen", 64, count=4000, seed=0)
+    # every point of a nested uniform scramble is uniform: mean 1/2, variance 1/12
+    assert abs(pts.mean() - 0.5) < 0.005
+    assert abs(pts.var() - 1 / 12) < 0.002
+    # a digital shift would keep x_1 - x_0 mod 1 fixed at 1/2 in the top bit; Owen does not
+    d = (pts[:, 1, 0] - pts[:, 0, 0]) % 1.0
+    assert 0.1 < d.std()
+
+
+@pytest.mark.parametrize("n,g", [(64, 19), (256, 71), (576, 155), (1024, 271), (4096, 671)])
+def test_maxmin_generator(n, g):
+    assert maxmin_generator(n) == g
+
+
+def test_rank1_is_a_shifted_lattice():
+    n = 1024
+    base = korobov(n, 271)
+    pts = sample("rank1", n, count=2, seed=3)
+    for p in pts:
+        shift = (p[0] - base[0]) % 1.0
+        np.testing.assert_allclose((base + shift) % 1.0, p, atol=1e-12)
+
+
+def test_unknown_sampler_and_bad_sizes():
+    with pytest.raises(ValueError, match="unknown sampler 'nope'"):
+        sample("nope", 16)
+    with pytest.raises(ValueError, match="n must be >= 1"):
+        sample("rank1", 0)
+    with pytest.raises(TypeError, match="count must be an integer"):
+        sample("rank1", 16, count=1.5)

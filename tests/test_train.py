@@ -1,0 +1,70 @@
+import csv
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from trainer.config import TrainConfig  # noqa: E402
+from trainer.train import Trainer, load_checkpoint, lr_at  # noqa: E402
+
+from .conftest import tiny_config  # noqa: E402
+
+
+def test_exact_resume_after_stop(tmp_path):
+    cfg = tiny_config()
+    straight = Trainer(cfg, tmp_path / "a", progress=False)
+    straight.run()
+    first = Trainer(cfg, tmp_path / "b", progress=False)
+    first.run(until_step=3)
+    del first  # as if killed after its checkpoint
+    resumed = Trainer(cfg, tmp_path / "b", progress=False)
+    assert resumed.step == 3
+    resumed.run()
+    a = load_checkpoint(tmp_path / "a" / "checkpoint.pt")
+    b = load_checkpoint(tmp_path / "b" / "checkpoint.pt")
+    assert a["step"] == b["step"] == cfg.steps
+    for key in ("model", "ema"):
+        for name in a[key]:
+            assert torch.equal(a[key][name], b[key][name]), f"{key}.{name} differs"
+
+
+def test_loss_log_and_config_round_trip(tmp_path):
+    cfg = tiny_config(sampler="rank1", embedding="ot")
+    Trainer(cfg, tmp_path, progress=False).run()
+    rows = list(csv.DictReader(open(tmp_path / "log.csv")))
+    assert [int(r["step"]) for r in rows] == list(range(1, cfg.steps + 1))
+    assert all(float(r["loss"]) > 0 for r in rows)
+    assert TrainConfig.from_dict(load_checkpoint(tmp_path / "checkpoint.pt")["config"]) == cfg
+
+
+def test_resume_with_other_config_refused(tmp_path):
+    Trainer(tiny_config(), tmp_path, progress=False).run(until_step=1)
+    with pytest.raises(ValueError, match="different config"):
+        Trainer(tiny_config(name="other"), tmp_path, progress=False)
+
+
+def test_loss_goes_down_on_a_tiny_problem(tmp_path):
+    from dataclasses import replace
+    cfg = replace(tiny_config(), steps=60, lr=2e-3, warmup_steps=5)
+    Trainer(cfg, tmp_path, progress=False).run()
+    loss = [float(r["loss"]) for r in csv.DictReader(open(tmp_path / "log.csv"))]
+    assert sum(loss[-10:]) < 0.6 * sum(loss[:10])
+
+
+def test_learning_rate_schedule():
+    cfg = tiny_config()
+    assert lr_at(cfg, 0) < lr_at(cfg, 1) <= cfg.lr
+    assert lr_at(cfg, cfg.steps) == pytest.approx(0.1 * cfg.lr)
+
+
+def test_unknown_config_key():
+    with pytest.raises(ValueError, match="unknown config keys"):
+        TrainConfig.from_dict({"name": "x", "data": {"sampler": "rank1", "embedding": "ot"},
+                               "stepz": 3})
+
+
+def test_bundled_recipes_load():
+    from pathlib import Path
+    for path in Path("trainer/configs").glob("*.json"):
+        cfg = TrainConfig.load(path)
+        assert cfg.name == path.stem

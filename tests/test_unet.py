@@ -1,0 +1,41 @@
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from trainer.unet import UNet, UNetConfig  # noqa: E402
+
+from .conftest import TINY_UNET  # noqa: E402
+
+
+@pytest.mark.parametrize("padding", ["zeros", "circular"])
+@pytest.mark.parametrize("k", [4, 5, 8, 24, 25, 30])
+def test_any_grid_side(padding, k):
+    net = UNet(UNetConfig(**TINY_UNET, padding=padding, coord_bits=2))
+    x = torch.randn(2, 2, k, k)
+    assert net(x, torch.tensor([0.0, 999.0])).shape == (2, 2, k, k)
+
+
+def test_default_net_three_levels_odd_side():
+    net = UNet(UNetConfig())
+    assert net(torch.randn(1, 2, 25, 25), torch.tensor([10.0])).shape == (1, 2, 25, 25)
+
+
+def test_attention_placement_is_a_setting():
+    none = UNet(UNetConfig(**{**TINY_UNET, "attention_levels": (), "middle_attention": False}))
+    every = UNet(UNetConfig(**{**TINY_UNET, "attention_levels": (0, 1)}))
+    count = lambda m: sum(type(x).__name__ == "Attention" for x in m.modules())
+    assert count(none) == 0 and count(every) > count(UNet(UNetConfig(**TINY_UNET)))
+
+
+def test_bad_settings():
+    with pytest.raises(ValueError, match="padding"):
+        UNetConfig(padding="reflect")
+    with pytest.raises(ValueError, match="attention_levels"):
+        UNetConfig(attention_levels=(5,))
+
+
+def test_coordinate_channels_encode_dyadic_position():
+    net = UNet(UNetConfig(**TINY_UNET, coord_bits=2))
+    c = net._coords(torch.zeros(1, 2, 4, 4))[0]
+    assert c[0, 0].tolist() == [-1, 1, -1, 1]  # bit 0 of the column index
+    assert c[1, 0].tolist() == [-1, -1, 1, 1]  # bit 1 of the column index

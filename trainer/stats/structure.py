@@ -1,0 +1,28 @@
+"""Net structure: elementary intervals of 2^m-point sets."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def empty_elementary_fraction(points: np.ndarray) -> np.ndarray:
+    """Fraction of empty elementary intervals, per set of n = 2^m points.
+
+    Over all shapes 2^-a x 2^-b with a + b = m ((m + 1) n intervals in all); 0 for a
+    (0, m, 2)-net, whose every elementary interval holds exactly one point.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    n = flat.shape[1]
+    m = n.bit_length() - 1
+    if 1 << m != n:
+        raise ValueError(f"elementary intervals need n = 2^m points, got n={n}")
+    out = np.empty(len(flat))
+    for s, p in enumerate(flat):
+        empty = 0
+        for a in range(m + 1):
+            b = m - a
+            cx = np.minimum((p[:, 0] * (1 << a)).astype(np.int64), (1 << a) - 1)
+            cy = np.minimum((p[:, 1] * (1 << b)).astype(np.int64), (1 << b) - 1)
+            empty += n - np.unique(cx * (1 << b) + cy).size
+        out[s] = empty / ((m + 1) * n)
+    return out.reshape(pts.shape[:-2])
