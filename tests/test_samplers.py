@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from trainer.samplers import SAMPLERS, sample
+from trainer.samplers import SAMPLERS, SLOW, sample
 from trainer.samplers.lattice import korobov, maxmin_generator
 from trainer.samplers.sobol_owen import sobol_digits
 
@@ -9,6 +9,8 @@ from trainer.samplers.sobol_owen import sobol_digits
 @pytest.mark.parametrize("name", sorted(SAMPLERS))
 @pytest.mark.parametrize("n", [16, 64, 100, 1024])
 def test_contract(name, n):
+    if name in SLOW and n > 100:
+        pytest.skip("slow sampler: checked at small n")
     pts = sample(name, n, count=3, seed=7)
     assert pts.shape == (3, n, 2) and pts.dtype == np.float64
     assert np.all(pts >= 0) and np.all(pts < 1)
@@ -48,6 +50,12 @@ def test_maxmin_generator(n, g):
     assert maxmin_generator(n) == g
 
 
+@pytest.mark.parametrize("n,g", [(64, 27), (256, 75), (576, 241), (1024, 275), (4096, 1557)])
+def test_p2_generator(n, g):
+    from trainer.samplers.lattice import p2_generator
+    assert p2_generator(n) == g
+
+
 def test_rank1_is_a_shifted_lattice():
     n = 1024
     base = korobov(n, 271)
@@ -64,3 +72,20 @@ def test_unknown_sampler_and_bad_sizes():
         sample("rank1", 0)
     with pytest.raises(TypeError, match="count must be an integer"):
         sample("rank1", 16, count=1.5)
+
+
+def test_poisson_disk_keeps_its_radius():
+    from trainer.samplers.poisson_disk import hex_spacing
+    from trainer.stats import min_distance
+    pts = sample("poisson_disk", 256, count=3, seed=0)
+    d = min_distance(pts, toroidal=True) / hex_spacing(256)
+    # starts at 0.75 r_max and relaxes by 0.9 when stuck: 0.675 after one relaxation
+    assert np.all(d >= 0.75 * 0.9**2) and np.all(d <= 0.80)
+
+
+def test_gbn_spreads_points_out():
+    from trainer.samplers.gbn import gbn_relax
+    from trainer.stats import min_distance
+    white = np.random.default_rng(0).random((256, 2))
+    relaxed = gbn_relax(white, 200)
+    assert min_distance(relaxed, toroidal=True) > 5 * min_distance(white, toroidal=True)

@@ -9,7 +9,9 @@ from typing import Callable
 
 import numpy as np
 
-from .lattice import rank1
+from .gbn import gbn
+from .lattice import p2_lattice, rank1
+from .poisson_disk import poisson_disk
 from .sobol_owen import sobol_owen
 
 SamplerFn = Callable[[int, int, np.random.Generator], np.ndarray]
@@ -18,7 +20,13 @@ SamplerFn = Callable[[int, int, np.random.Generator], np.ndarray]
 SAMPLERS: dict[str, SamplerFn] = {
     "sobol_owen": sobol_owen,
     "rank1": rank1,
+    "lattice": p2_lattice,
+    "poisson_disk": poisson_disk,
+    "gbn": gbn,
 }
+
+#: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
+SLOW = frozenset({"poisson_disk", "gbn"})
 
 
 def sample(name: str, n: int, *, count: int = 1,
