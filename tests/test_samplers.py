@@ -89,3 +89,17 @@ def test_gbn_spreads_points_out():
     white = np.random.default_rng(0).random((256, 2))
     relaxed = gbn_relax(white, 200)
     assert min_distance(relaxed, toroidal=True) > 5 * min_distance(white, toroidal=True)
+
+
+def test_sot_disk_quantiles_and_concentric_map():
+    from trainer.samplers.sot import disk_quantiles, disk_to_square
+    t = disk_quantiles(1000)
+    F = 0.5 + (t * np.sqrt(1 - t * t) + np.arcsin(t)) / np.pi
+    np.testing.assert_allclose(F, (2 * np.arange(1000) + 1) / 2000, atol=1e-12)
+    # Shirley-Chiu forward map of square points, then our inverse, is the identity
+    a, b = np.random.default_rng(0).uniform(-1, 1, (2, 5000))
+    wide = np.abs(a) > np.abs(b)
+    r = np.where(wide, a, b)
+    phi = np.where(wide, np.pi / 4 * b / a, np.pi / 2 - np.pi / 4 * a / b)
+    disk = np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+    np.testing.assert_allclose(disk_to_square(disk), (np.stack([a, b], -1) + 1) / 2, atol=1e-12)

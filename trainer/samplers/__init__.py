@@ -12,6 +12,7 @@ import numpy as np
 from .gbn import gbn
 from .lattice import p2_lattice, rank1
 from .poisson_disk import poisson_disk
+from .sot import sot
 from .sobol_owen import sobol_owen
 
 SamplerFn = Callable[[int, int, np.random.Generator], np.ndarray]
@@ -23,10 +24,11 @@ SAMPLERS: dict[str, SamplerFn] = {
     "lattice": p2_lattice,
     "poisson_disk": poisson_disk,
     "gbn": gbn,
+    "sot": sot,
 }
 
 #: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
-SLOW = frozenset({"poisson_disk", "gbn"})
+SLOW = frozenset({"poisson_disk", "gbn", "sot"})
 
 
 def sample(name: str, n: int, *, count: int = 1,
