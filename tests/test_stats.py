@@ -51,3 +51,50 @@ def test_min_distance():
     pts = np.array([[0.01, 0.5], [0.99, 0.5], [0.5, 0.5]])
     assert min_distance(pts) == pytest.approx(0.49)
     assert min_distance(pts, toroidal=True) == pytest.approx(0.02)
+
+
+def test_gl2_closed_form_matches_its_kernel_definition():
+    from trainer.stats import gl2
+    # D^2 = int int K - 2/n sum_i int K(x_i, .) + 1/n^2 sum_ij K(x_i, x_j), K = prod (2 - max)
+    pts = np.random.default_rng(1).random((20, 2))
+    g = (np.arange(400) + 0.5) / 400
+    grid = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    K = lambda a, b: np.prod(2 - np.maximum(a[:, None, :], b[None, :, :]), axis=2)
+    d2 = (4 / 3) ** 2 - 2 * K(pts, grid).mean() + K(pts, pts).mean()
+    assert gl2(pts) ** 2 == pytest.approx(d2, abs=1e-5)  # midpoint rule: ~1e-6 error
+
+
+def test_gaussian_integrals_match_quadrature():
+    from scipy.integrate import dblquad
+    from trainer.stats import Gaussians
+    G = Gaussians.random(3, seed=4)
+    exact = G.integrals()
+    for j in range(3):
+        ref = dblquad(lambda y, x: G(np.array([[x, y]]))[j, 0], 0, 1, 0, 1, epsabs=1e-13)[0]
+        assert exact[j] == pytest.approx(ref, abs=1e-12)
+
+
+def test_heaviside_areas_match_brute_force():
+    from trainer.stats import Heavisides
+    H = Heavisides.random(6, seed=2)
+    g = (np.arange(1000) + 0.5) / 1000
+    grid = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    np.testing.assert_allclose(H.integrals(), H(grid).mean(axis=1), atol=2e-5)
+
+
+def test_integration_mse_is_lower_for_better_points():
+    from trainer.stats import Gaussians, integration_mse
+    G = Gaussians.random(100, seed=0)
+    exact = G.integrals()
+    owen = integration_mse(sample("sobol_owen", 256, count=8, seed=0), G, exact).mean()
+    white = integration_mse(np.random.default_rng(0).random((8, 256, 2)), G, exact).mean()
+    assert owen < white / 10
+
+
+def test_t_value_and_projections():
+    from trainer.stats import stratified_projections, t_value
+    assert np.all(t_value(sample("sobol_owen", 256, count=2, seed=0)) == 0)
+    grid = (np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2) + 0.5) / 16
+    assert t_value(grid) == 4  # a 16x16 grid only fills the 2^-4 x 2^-4 squares evenly
+    assert np.all(stratified_projections(sample("sobol_owen", 64, count=2, seed=0)))
+    assert not stratified_projections(grid)

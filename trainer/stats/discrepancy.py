@@ -22,3 +22,23 @@ def l2_star(points: np.ndarray, chunk: int = 2048) -> np.ndarray:
                              axis=2).sum()
         out[s] = 3.0 ** (-d) - term1 + term2 / n**2
     return np.sqrt(np.maximum(out, 0.0)).reshape(pts.shape[:-2])
+
+
+def gl2(points: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Hickernell's generalised L2 discrepancy, per set (square root).
+
+    The discrepancy of the kernel K(x, y) = prod_k (2 - max(x_k, y_k)):
+    D^2 = (4/3)^d - 2/n sum_i prod_k (3 - x_ik^2) / 2 + 1/n^2 sum_ij prod_k (2 - max(x_ik, x_jk)).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    n, d = flat.shape[1:]
+    out = np.empty(len(flat))
+    for s, p in enumerate(flat):
+        term1 = np.prod((3.0 - p**2) / 2.0, axis=1).sum() * 2.0 / n
+        term2 = 0.0
+        for i in range(0, n, chunk):
+            term2 += np.prod(2.0 - np.maximum(p[i:i + chunk, None, :], p[None, :, :]),
+                             axis=2).sum()
+        out[s] = (4.0 / 3.0) ** d - term1 + term2 / n**2
+    return np.sqrt(np.maximum(out, 0.0)).reshape(pts.shape[:-2])

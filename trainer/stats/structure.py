@@ -26,3 +26,42 @@ def empty_elementary_fraction(points: np.ndarray) -> np.ndarray:
             empty += n - np.unique(cx * (1 << b) + cy).size
         out[s] = empty / ((m + 1) * n)
     return out.reshape(pts.shape[:-2])
+
+
+def _interval_counts(p: np.ndarray, a: int, b: int) -> np.ndarray:
+    cx = np.minimum((p[:, 0] * (1 << a)).astype(np.int64), (1 << a) - 1)
+    cy = np.minimum((p[:, 1] * (1 << b)).astype(np.int64), (1 << b) - 1)
+    return np.bincount(cx * (1 << b) + cy, minlength=1 << (a + b))
+
+
+def t_value(points: np.ndarray) -> np.ndarray:
+    """Smallest t such that each set of n = 2^m points is a (t, m, 2)-net in base 2.
+
+    A (t, m, 2)-net puts exactly 2^t points in every elementary interval of area 2^(t-m).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    n = flat.shape[1]
+    m = n.bit_length() - 1
+    if 1 << m != n:
+        raise ValueError(f"t-value needs n = 2^m points, got n={n}")
+    out = np.empty(len(flat), dtype=np.int64)
+    for s, p in enumerate(flat):
+        for t in range(m + 1):
+            q = m - t
+            if all(np.all(_interval_counts(p, a, q - a) == 1 << t) for a in range(q + 1)):
+                out[s] = t
+                break
+    return out.reshape(pts.shape[:-2])
+
+
+def stratified_projections(points: np.ndarray) -> np.ndarray:
+    """Whether both 1-d projections of each set put exactly one point in every 1/n strip."""
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    n = flat.shape[1]
+    out = np.empty(len(flat), dtype=bool)
+    for s, p in enumerate(flat):
+        strips = np.minimum((p * n).astype(np.int64), n - 1)
+        out[s] = all(np.unique(strips[:, c]).size == n for c in range(2))
+    return out.reshape(pts.shape[:-2])
