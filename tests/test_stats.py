@@ -98,3 +98,16 @@ def test_t_value_and_projections():
     assert t_value(grid) == 4  # a 16x16 grid only fills the 2^-4 x 2^-4 squares evenly
     assert np.all(stratified_projections(sample("sobol_owen", 64, count=2, seed=0)))
     assert not stratified_projections(grid)
+
+
+def test_compare_same_and_different_samplers():
+    from trainer.stats import compare, format_table
+    owen = sample("sobol_owen", 256, count=16, seed=0)
+    owen2 = sample("sobol_owen", 256, count=16, seed=1)
+    white = np.random.default_rng(0).random((16, 256, 2))
+    same = compare(owen, owen2)
+    diff = compare(white, owen)
+    assert abs(same["l2_star"]["rel_diff"]) < 0.15 and same["l2_star"]["p_value"] > 1e-3
+    assert diff["l2_star"]["rel_diff"] > 1.0 and diff["l2_star"]["p_value"] < 1e-6
+    assert same["radial_spectrum"]["mae"] < diff["radial_spectrum"]["mae"]
+    assert "| l2_star |" in format_table(same)

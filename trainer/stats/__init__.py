@@ -1,4 +1,5 @@
 """Statistics of point sets: pure numpy functions of (..., n, 2) arrays; no samplers here."""
+from .compare import compare, format_table
 from .discrepancy import gl2, l2_star
 from .distance import min_distance
 from .integration import Gaussians, Heavisides, integration_mse
@@ -7,4 +8,5 @@ from .structure import empty_elementary_fraction, stratified_projections, t_valu
 
 __all__ = ["l2_star", "gl2", "min_distance", "periodogram", "radial_spectrum", "spectrum_mae",
            "BIN_WIDTH", "NUM_BINS", "empty_elementary_fraction", "t_value",
-           "stratified_projections", "Gaussians", "Heavisides", "integration_mse"]
+           "stratified_projections", "Gaussians", "Heavisides", "integration_mse", "compare",
+           "format_table"]
