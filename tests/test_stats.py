@@ -111,3 +111,26 @@ def test_compare_same_and_different_samplers():
     assert diff["l2_star"]["rel_diff"] > 1.0 and diff["l2_star"]["p_value"] < 1e-6
     assert same["radial_spectrum"]["mae"] < diff["radial_spectrum"]["mae"]
     assert "| l2_star |" in format_table(same)
+
+
+@pytest.mark.parametrize("k", [4, 7, 16])
+def test_ot_energy_of_a_grid_is_one_over_6n(k):
+    from trainer.stats import ot_energy
+    grid = (np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2) + 0.5) / k
+    assert ot_energy(grid) == pytest.approx(1 / (6 * k * k), rel=1e-12)
+
+
+def test_ot_energy_converges_and_orders_samplers():
+    import warnings
+    from trainer.stats import ot_energy
+    from trainer.stats.ot_energy import _cells
+    white = np.random.default_rng(3).random((2, 128, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a non-converged solve would warn
+        e_white = ot_energy(white)
+        e_owen = ot_energy(sample("sobol_owen", 128, count=2, seed=0))
+    assert np.all(e_owen < e_white)
+    # hexagonal-like order is the optimum: white noise is several times worse (~0.5/n)
+    assert np.all(e_white > 2 * 0.1604 / 128)
+    area, moment, _ = _cells(white[0], np.zeros(128))  # Voronoi cells tile the square
+    assert area.sum() == pytest.approx(1.0, rel=1e-12)
