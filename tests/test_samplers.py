@@ -103,3 +103,9 @@ def test_sot_disk_quantiles_and_concentric_map():
     phi = np.where(wide, np.pi / 4 * b / a, np.pi / 2 - np.pi / 4 * a / b)
     disk = np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
     np.testing.assert_allclose(disk_to_square(disk), (np.stack([a, b], -1) + 1) / 2, atol=1e-12)
+
+
+def test_slow_samplers_give_the_same_sets_whatever_the_count():
+    a = sample("poisson_disk", 16, count=3, seed=9)
+    b = sample("poisson_disk", 16, count=2, seed=9)
+    np.testing.assert_array_equal(a[:2], b)

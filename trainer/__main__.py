@@ -54,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"step {tr.step}: checkpoint {path}")
         else:
             from .samplers import sample
-            pts = sample(args.name, args.n, count=args.count, seed=args.seed)
+            pts = sample(args.name, args.n, count=args.count, seed=args.seed,
+                         progress=sys.stderr.isatty())
             _save_points(pts, args.output)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -32,7 +32,7 @@ SLOW = frozenset({"poisson_disk", "gbn", "sot"})
 
 
 def sample(name: str, n: int, *, count: int = 1,
-           seed: int | np.random.Generator | None = None) -> np.ndarray:
+           seed: int | np.random.Generator | None = None, progress: bool = False) -> np.ndarray:
     """Draw ``count`` point sets of ``n`` points from the reference sampler ``name``.
 
     Parameters
@@ -45,6 +45,8 @@ def sample(name: str, n: int, *, count: int = 1,
         Number of independent sets.
     seed : int or numpy.random.Generator, optional
         Seeds the sampler; the same seed gives the same sets.
+    progress : bool, optional
+        Show a progress bar (slow samplers, which run set by set).
 
     Returns
     -------
@@ -64,6 +66,14 @@ def sample(name: str, n: int, *, count: int = 1,
         if value < low:
             raise ValueError(f"{label} must be >= {low}, got {value}")
     rng = np.random.default_rng(seed)
-    pts = SAMPLERS[name](int(n), int(count), rng)
+    if name in SLOW:
+        # set by set, each from its own child stream: a set does not depend on the count
+        streams = rng.spawn(int(count))
+        if progress:
+            from tqdm import tqdm
+            streams = tqdm(streams, desc=f"{name} n={n}", unit="set")
+        pts = np.stack([SAMPLERS[name](int(n), 1, g)[0] for g in streams])
+    else:
+        pts = SAMPLERS[name](int(n), int(count), rng)
     assert pts.shape == (count, n, 2)
     return pts
