@@ -109,3 +109,22 @@ def test_slow_samplers_give_the_same_sets_whatever_the_count():
     a = sample("poisson_disk", 16, count=3, seed=9)
     b = sample("poisson_disk", 16, count=2, seed=9)
     np.testing.assert_array_equal(a[:2], b)
+
+
+def test_ramp_cdf_is_exact():
+    from trainer.samplers.densities import ramp_cdf
+    # theta = pi/4: P(x + y <= t sqrt 2) for density 2x; at t sqrt2 = 1 it is int_0^1 2x (1-x) = 1/3
+    assert ramp_cdf(np.array([1 / np.sqrt(2)]), np.pi / 4)[0] == pytest.approx(1 / 3, abs=1e-14)
+    assert ramp_cdf(np.array([0.5]), 0.0)[0] == pytest.approx(0.25)
+    th = 2.0
+    lo, hi = min(0, np.cos(th)), np.sin(th)
+    assert ramp_cdf(np.array([lo, hi]), th) == pytest.approx([0, 1], abs=1e-14)
+
+
+def test_non_uniform_samplers_follow_their_density():
+    ramp = sample("sot_ramp", 64, count=2, seed=0)
+    assert abs(ramp[..., 0].mean() - 2 / 3) < 0.01 and abs(ramp[..., 1].mean() - 0.5) < 0.01
+    from trainer.samplers.densities import blob_density
+    blob = sample("gbn_blob", 64, count=2, seed=0)
+    white = np.random.default_rng(0).random((2, 64, 2))
+    assert blob_density(blob).mean() > 1.5 * blob_density(white).mean()

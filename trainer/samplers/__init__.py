@@ -9,6 +9,7 @@ from typing import Callable
 
 import numpy as np
 
+from .densities import gbn_blob, sot_ramp
 from .gbn import gbn
 from .lattice import p2_lattice, rank1
 from .poisson_disk import poisson_disk
@@ -25,10 +26,12 @@ SAMPLERS: dict[str, SamplerFn] = {
     "poisson_disk": poisson_disk,
     "gbn": gbn,
     "sot": sot,
+    "sot_ramp": sot_ramp,
+    "gbn_blob": gbn_blob,
 }
 
 #: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
-SLOW = frozenset({"poisson_disk", "gbn", "sot"})
+SLOW = frozenset({"poisson_disk", "gbn", "sot", "sot_ramp", "gbn_blob"})
 
 
 def sample(name: str, n: int, *, count: int = 1,
