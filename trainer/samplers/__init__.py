@@ -12,6 +12,7 @@ import numpy as np
 from .densities import gbn_blob, sot_ramp
 from .gbn import gbn
 from .lattice import p2_lattice, rank1
+from .ldbn import ldbn
 from .poisson_disk import poisson_disk
 from .sot import sot
 from .sobol_owen import sobol_owen
@@ -28,6 +29,7 @@ SAMPLERS: dict[str, SamplerFn] = {
     "sot": sot,
     "sot_ramp": sot_ramp,
     "gbn_blob": gbn_blob,
+    "ldbn": ldbn,
 }
 
 #: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
