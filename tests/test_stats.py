@@ -134,3 +134,12 @@ def test_ot_energy_converges_and_orders_samplers():
     assert np.all(e_white > 2 * 0.1604 / 128)
     area, moment, _ = _cells(white[0], np.zeros(128))  # Voronoi cells tile the square
     assert area.sum() == pytest.approx(1.0, rel=1e-12)
+
+
+def test_pair_correlation():
+    from trainer.stats import pair_correlation
+    r, g = pair_correlation(np.random.default_rng(0).random((20, 400, 2)))
+    assert np.all(np.abs(g[r > 0.5] - 1) < 0.1)  # white noise: g = 1
+    r, g = pair_correlation(sample("poisson_disk", 256, count=4, seed=0))
+    assert np.all(g[r < 0.6] < 0.02)  # no pair closer than the disk radius (~0.675 r_max)
+    assert g[(r > 0.7) & (r < 1.0)].max() > 1.2  # the first-neighbour peak
