@@ -13,6 +13,21 @@ def korobov(n: int, g: int) -> np.ndarray:
     return np.stack([i, (i * g) % n], axis=1).astype(np.float64) / n
 
 
+def _coprime_generators(n: int) -> np.ndarray:
+    """Candidate generators 1 <= g <= n/2 with gcd(g, n) = 1 (g and n - g are mirror images)."""
+    return np.array([g for g in range(1, n // 2 + 1) if math.gcd(g, n) == 1], dtype=np.int64)
+
+
+def _score_generators(n: int, i: np.ndarray, score) -> tuple[np.ndarray, np.ndarray]:
+    """score((g*i) mod n as a (G, len(i)) array) for every candidate g, in chunks."""
+    cand = _coprime_generators(n)
+    out = np.empty(cand.size)
+    chunk = max(1, 4_000_000 // n)
+    for s in range(0, cand.size, chunk):
+        out[s:s + chunk] = score((cand[s:s + chunk, None] * i[None, :]) % n)
+    return cand, out
+
+
 @lru_cache(maxsize=64)
 def maxmin_generator(n: int) -> int:
     """The generator g (coprime to n) that maximises the lattice's toroidal min distance.
@@ -27,15 +42,10 @@ def maxmin_generator(n: int) -> int:
     """
     if n < 3:
         return 1
-    cand = np.array([g for g in range(1, n // 2 + 1) if math.gcd(g, n) == 1], dtype=np.int64)
     i = np.arange(1, n, dtype=np.int64)
     dx = np.minimum(i, n - i).astype(np.float64) ** 2
-    best = np.empty(cand.size)
-    chunk = max(1, 4_000_000 // n)
-    for s in range(0, cand.size, chunk):
-        y = (cand[s:s + chunk, None] * i[None, :]) % n
-        dy = np.minimum(y, n - y).astype(np.float64) ** 2
-        best[s:s + chunk] = (dx[None, :] + dy).min(axis=1)
+    cand, best = _score_generators(
+        n, i, lambda y: (dx[None, :] + np.minimum(y, n - y).astype(np.float64) ** 2).min(axis=1))
     return int(cand[int(np.argmax(best))])  # argmax returns the first (smallest g) tie
 
 
@@ -65,18 +75,13 @@ def p2_generator(n: int) -> int:
     """
     if n < 3:
         return 1
-    cand = np.array([g for g in range(1, n // 2 + 1) if math.gcd(g, n) == 1], dtype=np.int64)
     i = np.arange(n, dtype=np.int64)
 
     def factor(x: np.ndarray) -> np.ndarray:
         return 1.0 + 2.0 * math.pi**2 * (x * x - x + 1.0 / 6.0)
 
     fx = factor(i / n)
-    merit = np.empty(cand.size)
-    chunk = max(1, 4_000_000 // n)
-    for s in range(0, cand.size, chunk):
-        y = ((cand[s:s + chunk, None] * i[None, :]) % n) / n
-        merit[s:s + chunk] = (fx[None, :] * factor(y)).mean(axis=1) - 1.0
+    cand, merit = _score_generators(n, i, lambda y: (fx[None, :] * factor(y / n)).mean(axis=1) - 1.0)
     return int(cand[int(np.argmin(merit))])
 
 
