@@ -8,7 +8,7 @@ diffusion maths lives in :mod:`trainer.diffusion`.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F

@@ -80,5 +80,7 @@ def sample(name: str, n: int, *, count: int = 1,
         pts = np.stack([SAMPLERS[name](int(n), 1, g)[0] for g in streams])
     else:
         pts = SAMPLERS[name](int(n), int(count), rng)
-    assert pts.shape == (count, n, 2)
+    if pts.shape != (count, n, 2):  # a sampler broke the shared contract
+        raise RuntimeError(f"sampler {name!r} returned shape {pts.shape}, "
+                           f"expected {(count, n, 2)}")
     return pts

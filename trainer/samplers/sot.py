@@ -8,7 +8,6 @@ Chiu's concentric map, which preserves area, so uniform stays uniform.
 """
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
 import numpy as np
