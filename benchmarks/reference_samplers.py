@@ -15,7 +15,6 @@ import argparse
 import datetime as dt
 import os
 import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -24,40 +23,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from trainer.samplers import sample  # noqa: E402
+from benchmarks.common import SEED_COLUMNS as COLUMNS, SEED_CSV, cached_sets, generate  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae, stratified_projections  # noqa: E402
 
-SEED_CSV = ROOT.parent / "shared" / "reference" / "radial_spectra_original_n1024.csv"
-COLUMNS = ["poisson_disk", "gbn", "sot", "ldbn", "sobol_owen", "rank1"]
 TARGETS = {"rank1": 0.005, "sobol_owen": 0.01, "sot": 0.03, "gbn": 0.03,
            "poisson_disk": 0.03, "ldbn": 0.05}
 SIZES = (64, 256, 1024, 4096)
-
-
-def _chunk(args):
-    name, n, count, seed = args
-    t = time.perf_counter()
-    pts = sample(name, n, count=count, seed=seed)
-    return pts, time.perf_counter() - t
-
-
-def cached_sets(pool, name: str, n: int, count: int, seed: int, chunk: int):
-    """The sets of :func:`generate`, cached on disk (they are deterministic in the seed)."""
-    from trainer.data import cache_dir
-    path = cache_dir() / "reference" / f"{name}_n{n}_c{count}_s{seed}.npz"
-    if path.exists():
-        z = np.load(path)
-        return z["pts"], float(z["per_set"]), True
-    pts, per_set = generate(pool, name, n, count, seed, chunk)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, pts=pts, per_set=per_set)
-    return pts, per_set, False
-
-
-def generate(pool, name: str, n: int, count: int, seed: int, chunk: int):
-    jobs = [(name, n, min(chunk, count - s), [seed, s]) for s in range(0, count, chunk)]
-    parts = list(pool.map(_chunk, jobs))
-    return np.concatenate([p for p, _ in parts]), sum(t for _, t in parts) / count
 
 
 def main() -> None:
@@ -74,8 +45,7 @@ def main() -> None:
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.samplers:
             sets = 1 if name == "rank1" else a.sets
-            pts, per_set, _ = cached_sets(pool, name, 1024, sets, 1,
-                                          chunk=max(1, sets // (4 * a.workers)))
+            pts, per_set, _ = cached_sets(pool, name, 1024, sets, 1)
             wall = per_set * sets / a.workers  # wall time of generating them on the workers
             if a.no_timing:
                 print(f"{name}: {sets} sets cached ({per_set:.2f} s per set)", flush=True)

@@ -1,4 +1,4 @@
-"""Command line: ``python -m trainer train CONFIG`` and ``python -m trainer sample NAME N``."""
+"""Command line: ``python -m trainer train|prepare CONFIG`` and ``python -m trainer sample NAME N``."""
 from __future__ import annotations
 
 import argparse
@@ -34,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--minutes", type=float, help="stop after this much wall time")
     t.add_argument("--no-progress", action="store_true")
 
+    r = sub.add_parser("prepare", help="build (and cache) a config's training pools")
+    r.add_argument("config", type=Path)
+
     s = sub.add_parser("sample", help="draw point sets from a reference sampler")
     s.add_argument("name")
     s.add_argument("n", type=int)
@@ -52,6 +55,13 @@ def main(argv: list[str] | None = None) -> int:
             path = tr.run(until_step=args.steps,
                           max_seconds=None if args.minutes is None else 60 * args.minutes)
             print(f"step {tr.step}: checkpoint {path}")
+        elif args.cmd == "prepare":
+            from .config import TrainConfig
+            from .data import Batches
+            cfg = TrainConfig.load(args.config)
+            pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty()).pools
+            for k, pool in pools.items():
+                print(f"{cfg.name}: k={k} pool {pool.shape}")
         else:
             from .samplers import sample
             pts = sample(args.name, args.n, count=args.count, seed=args.seed,

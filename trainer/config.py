@@ -25,6 +25,10 @@ class DataConfig:
     symmetries: tuple[int, ...] = (0,)
     #: offsets (cell units) are multiplied by this before diffusion
     offset_scale: float = 2.0
+    #: pool entries per generated set: the set itself and shifts - 1 copies translated by a
+    #: uniform random vector modulo 1, each embedded anew (toroidal samplers only, whose
+    #: distribution is invariant under translations of the torus)
+    shifts: int = 1
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,9 @@ class TrainConfig:
     ema_decay: float = 0.995
     seed: int = 0
     threads: int = 1
+    #: bfloat16 autocast for forward/backward (weights, optimiser and EMA stay float32):
+    #: ~1.6x faster per step on this CPU (avx512_bf16)
+    bf16: bool = False
     checkpoint_every_s: float = 180.0
     log_every: int = 10
     #: sampling steps the exported model uses by default

@@ -4,13 +4,17 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
 
 from .config import DataConfig
 from .embedding import embed, symmetries
-from .samplers import sample
+from .samplers import TOROIDAL, sample
+
+#: sets drawn per call of the sampler when a pool is built (also the unit of the RNG streams)
+CHUNK = 64
 
 
 def cache_dir() -> Path:
@@ -19,24 +23,44 @@ def cache_dir() -> Path:
     return Path(root)
 
 
-def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
-              progress: bool = False) -> np.ndarray:
-    """``count`` embedded reference sets (count, 2, k, k), float32, deterministic in seed.
+def _pool_chunk(sampler: str, embedding: str, k: int, count: int, seed: int, start: int,
+                shifts: int, rng: np.random.Generator) -> np.ndarray:
+    """Sets start .. start+count of a pool, each embedded ``shifts`` times (set-major)."""
+    pts = sample(sampler, k * k, count=count, seed=rng)
+    if shifts > 1:
+        move = np.random.default_rng([seed, k, 1, start]).random((count, shifts - 1, 1, 2))
+        pts = np.concatenate([pts[:, None], (pts[:, None] + move) % 1.0], axis=1)
+        pts = np.where(pts >= 1.0, 0.0, pts).reshape(count * shifts, k * k, 2)
+    return embed(pts, embedding)
 
-    Cached on disk under :func:`cache_dir` keyed by every argument.
+
+def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
+              progress: bool = False, shifts: int = 1) -> np.ndarray:
+    """``count`` reference sets embedded on the k x k grid: float32 (count * shifts, 2, k, k).
+
+    Deterministic in the arguments and cached on disk under :func:`cache_dir`. A pool of
+    fewer sets is the prefix of a larger one with the same arguments (sets come from
+    per-set child streams), so a cached larger pool is reused.
     """
-    key = json.dumps([sampler, embedding, k, count, seed])
-    path = cache_dir() / f"{sampler}_{embedding}_k{k}_{count}_{hashlib.sha1(key.encode()).hexdigest()[:10]}.npy"
-    if path.exists():
-        return np.load(path)
+    if shifts > 1 and sampler not in TOROIDAL:
+        raise ValueError(f"shifts={shifts}: sampler {sampler!r} is not translation invariant "
+                         f"on the torus; toroidal ones are {sorted(TOROIDAL)}")
+    key = json.dumps([sampler, embedding, k, seed, shifts])
+    stem = f"{sampler}_{embedding}_k{k}_x{shifts}_{hashlib.sha1(key.encode()).hexdigest()[:10]}"
+    root = cache_dir()
+    for path in sorted(root.glob(f"{stem}_*.npy")):
+        m = re.fullmatch(rf"{re.escape(stem)}_(\d+)\.npy", path.name)
+        if m and int(m.group(1)) >= count:
+            return np.load(path, mmap_mode="r")[: count * shifts].copy()
     rng = np.random.default_rng([seed, k])
-    chunks = range(0, count, 64)
+    chunks = range(0, count, CHUNK)
     if progress:
         from tqdm import tqdm
-        chunks = tqdm(chunks, desc=f"pool {sampler} k={k}", unit_scale=64, leave=False)
-    pool = np.concatenate([embed(sample(sampler, k * k, count=min(64, count - s), seed=rng),
-                                 embedding) for s in chunks]).astype(np.float32)
-    path.parent.mkdir(parents=True, exist_ok=True)
+        chunks = tqdm(chunks, desc=f"pool {sampler} k={k}", unit="chunk", leave=False)
+    pool = np.concatenate([_pool_chunk(sampler, embedding, k, min(CHUNK, count - s), seed, s,
+                                       shifts, rng) for s in chunks]).astype(np.float32)
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / f"{stem}_{count}.npy"
     tmp = path.with_suffix(f".tmp{os.getpid()}.npy")
     np.save(tmp, pool)
     os.replace(tmp, path)
@@ -49,8 +73,10 @@ class Batches:
     def __init__(self, cfg: DataConfig, seed: int, progress: bool = False):
         if not len(cfg.sizes) == len(cfg.batch_sizes) == len(cfg.pool_sizes):
             raise ValueError("sizes, batch_sizes and pool_sizes must have the same length")
+        if cfg.shifts < 1:
+            raise ValueError(f"shifts must be >= 1, got {cfg.shifts}")
         self.cfg = cfg
-        self.pools = {k: make_pool(cfg.sampler, cfg.embedding, k, p, seed, progress)
+        self.pools = {k: make_pool(cfg.sampler, cfg.embedding, k, p, seed, progress, cfg.shifts)
                       for k, p in zip(cfg.sizes, cfg.pool_sizes) if p > 0}
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:

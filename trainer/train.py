@@ -109,7 +109,8 @@ class Trainer:
         self.opt.zero_grad(set_to_none=True)
         losses = []
         for x0 in self.batches.draw(self.rng):
-            loss = self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
+                loss = self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
             loss.backward()  # summed over sizes: gradients accumulate
             losses.append(loss.item())
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)

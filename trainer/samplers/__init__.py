@@ -35,6 +35,10 @@ SAMPLERS: dict[str, SamplerFn] = {
 #: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
 SLOW = frozenset({"poisson_disk", "gbn", "sot", "sot_ramp", "gbn_blob"})
 
+#: samplers whose distribution is invariant under translations of the torus (x + v mod 1):
+#: the only ones for which random shifts are a faithful augmentation
+TOROIDAL = frozenset({"rank1", "lattice", "poisson_disk", "gbn"})
+
 
 def sample(name: str, n: int, *, count: int = 1,
            seed: int | np.random.Generator | None = None, progress: bool = False) -> np.ndarray:

@@ -105,3 +105,38 @@ def gbn_blob(n: int, count: int, rng: np.random.Generator, oversample: int = 4,
         key = rng.random(len(big)) / blob_density(big)
         out[c] = big[np.argsort(key)[:n]]
     return out
+
+
+def ramp_unwarp(p: np.ndarray) -> np.ndarray:
+    """Rosenblatt map of the ramp density 2x to the uniform square: (x, y) -> (x^2, y)."""
+    p = np.asarray(p, dtype=np.float64)
+    return np.stack([p[..., 0] ** 2, p[..., 1]], axis=-1)
+
+
+def _gauss_int(t: np.ndarray) -> np.ndarray:
+    """int_0^t exp(-20 s^2) ds."""
+    from scipy.special import erf
+    return np.sqrt(np.pi / 80) * erf(np.sqrt(20.0) * t)
+
+
+def _sin2_int(t: np.ndarray) -> np.ndarray:
+    """int_0^t sin^2(pi s) ds."""
+    return t / 2 - np.sin(2 * np.pi * t) / (4 * np.pi)
+
+
+def blob_unwarp(p: np.ndarray) -> np.ndarray:
+    """Rosenblatt map of :func:`blob_density` to the uniform square (exact, closed form).
+
+    u = F_X(x) (the x-marginal's CDF), v = F_Y|X(y | x) (the conditional CDF of y).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    x, y = p[..., 0], p[..., 1]
+    g1, s1 = _gauss_int(1.0), _sin2_int(1.0)
+    ex, sx = np.exp(-20 * x * x), np.sin(np.pi * x) ** 2
+    u = (_gauss_int(x) * g1 + _sin2_int(x) * s1) / (g1 * g1 + s1 * s1)
+    v = (ex * _gauss_int(y) + sx * _sin2_int(y)) / (ex * g1 + sx * s1)
+    return np.clip(np.stack([u, v], axis=-1), 0.0, np.nextafter(1.0, 0.0))
+
+
+#: non-uniform samplers -> the map that takes their density to the uniform square
+UNWARP = {"sot_ramp": ramp_unwarp, "gbn_blob": blob_unwarp}

@@ -1,0 +1,61 @@
+"""Shared by the benchmark scripts: cached reference sets and the seed paper's curves."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from trainer.data import cache_dir  # noqa: E402
+from trainer.samplers import sample  # noqa: E402
+
+SEED_CSV = ROOT.parent / "shared" / "reference" / "radial_spectra_original_n1024.csv"
+SEED_COLUMNS = ["poisson_disk", "gbn", "sot", "ldbn", "sobol_owen", "rank1"]
+
+
+def seed_curve(sampler: str) -> np.ndarray | None:
+    """The seed paper's mean radial spectrum of ``sampler`` at n = 1024 (79 bins), if any."""
+    if not SEED_CSV.exists() or sampler not in SEED_COLUMNS:
+        return None
+    return np.loadtxt(SEED_CSV, delimiter=",", skiprows=1)[:, 1 + SEED_COLUMNS.index(sampler)]
+
+
+def _chunk(args):
+    name, n, count, seed = args
+    t = time.perf_counter()
+    pts = sample(name, n, count=count, seed=seed)
+    return pts, time.perf_counter() - t
+
+
+def generate(pool, name: str, n: int, count: int, seed: int, chunk: int):
+    """``count`` sets from reference sampler ``name`` on the executor ``pool``.
+
+    Returns the sets and the mean seconds per set (summed over workers: one-core time).
+    """
+    jobs = [(name, n, min(chunk, count - s), [seed, s]) for s in range(0, count, chunk)]
+    parts = list(pool.map(_chunk, jobs))
+    return np.concatenate([p for p, _ in parts]), sum(t for _, t in parts) / count
+
+
+def cached_sets(pool, name: str, n: int, count: int, seed: int):
+    """The sets of :func:`generate`, cached on disk (deterministic in the arguments).
+
+    Chunks of count // 8 sets, each from its own seed, whatever the number of workers.
+
+    Returns (sets, seconds per set when they were made, whether they came from the cache).
+    """
+    path = cache_dir() / "reference" / f"{name}_n{n}_c{count}_s{seed}.npz"
+    if path.exists():
+        z = np.load(path)
+        return z["pts"], float(z["per_set"]), True
+    pts, per_set = generate(pool, name, n, count, seed, max(1, count // 8))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, pts=pts, per_set=per_set)
+    tmp.replace(path)
+    return pts, per_set, False
