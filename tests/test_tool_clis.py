@@ -61,3 +61,14 @@ def test_export_missing_checkpoint(tmp_path):
     res = subprocess.run([sys.executable, "-m", "export", str(tmp_path / "none.pt"), "-o",
                           str(tmp_path / "x.onnx")], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 2 and "not found" in res.stderr
+
+
+def test_trainer_prepare_builds_the_pools(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_config()
+    cfg = replace(cfg, data=replace(cfg.data, pool_sizes=(3, 2)))
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(cfg.to_dict()))
+    assert trainer_main(["prepare", str(path)]) == 0
+    assert "k=8 pool (2, 2, 8, 8)" in capsys.readouterr().out
+    assert len(list((tmp_path / "cache").glob("*.npy"))) == 2

@@ -68,3 +68,13 @@ def test_bundled_recipes_load():
     for path in Path("trainer/configs").glob("*.json"):
         cfg = TrainConfig.load(path)
         assert cfg.name == path.stem
+
+
+def test_bf16_autocast_trains(tmp_path):
+    from dataclasses import replace
+    cfg = replace(tiny_config(), bf16=True, steps=3)
+    tr = Trainer(cfg, tmp_path, progress=False)
+    tr.run()
+    assert tr.step == 3
+    assert all(p.dtype == torch.float32 and torch.isfinite(p).all()
+               for p in tr.model.parameters())
