@@ -11,6 +11,10 @@ TINY_UNET = dict(base_channels=8, channel_mult=(1, 2), num_res_blocks=1, attenti
                  middle_attention=True, num_heads=2, groups=4)
 
 
+#: the tiny_onnx fixture's extra U-Net settings (every input and attention kind)
+TINY_ONNX_UNET = dict(coord_bits=2, axial_levels=(0,))
+
+
 def tiny_config(name: str = "tiny", sampler: str = "sobol_owen", embedding: str = "stratified",
                 **unet):
     from trainer.config import DataConfig, TrainConfig
@@ -26,13 +30,13 @@ def tiny_config(name: str = "tiny", sampler: str = "sobol_owen", embedding: str 
 
 @pytest.fixture(scope="session")
 def tiny_onnx(tmp_path_factory) -> Path:
-    """A small randomly initialised U-Net exported with a valid model card (fp16 weights)."""
+    """A small random U-Net (all attention kinds) exported with a valid model card (fp16 weights)."""
     torch = pytest.importorskip("torch")
     from export.onnx_export import export_model, model_card, round_to_fp16
     from trainer.unet import UNet
 
     torch.manual_seed(0)
-    cfg = tiny_config(coord_bits=2)
+    cfg = tiny_config(**TINY_ONNX_UNET)
     net = UNet(cfg.unet).eval()
     with torch.no_grad():  # the U-Net zero-initialises its output layers: make it non-trivial
         for p in net.parameters():

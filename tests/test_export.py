@@ -13,11 +13,11 @@ from export import ParityError, check_parity  # noqa: E402
 from trainer.diffusion import Diffusion  # noqa: E402
 from trainer.unet import UNet  # noqa: E402
 
-from .conftest import tiny_config  # noqa: E402
+from .conftest import TINY_ONNX_UNET, tiny_config  # noqa: E402
 
 
 def _tiny_net(path):
-    net = UNet(tiny_config(coord_bits=2).unet).eval()
+    net = UNet(tiny_config(**TINY_ONNX_UNET).unet).eval()
     net.load_state_dict(torch.load(path.with_suffix(".state")))
     return net
 

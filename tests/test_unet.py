@@ -39,3 +39,32 @@ def test_coordinate_channels_encode_dyadic_position():
     c = net._coords(torch.zeros(1, 2, 4, 4))[0]
     assert c[0, 0].tolist() == [-1, 1, -1, 1]  # bit 0 of the column index
     assert c[1, 0].tolist() == [-1, -1, 1, 1]  # bit 1 of the column index
+
+
+def test_axial_attention_mixes_rows_and_columns_only():
+    from trainer.unet import AxialAttention
+    torch.manual_seed(0)
+    layer = AxialAttention(8, heads=2, groups=1)
+    with torch.no_grad():  # projections start at zero (identity layer): make them act
+        for p in layer.projs:
+            p.weight.normal_()
+    layer.norms = torch.nn.ModuleList([torch.nn.Identity(), torch.nn.Identity()])
+    x = torch.randn(1, 8, 6, 6)
+    y = x.clone()
+    y[0, :, 2, 3] += 1.0  # one cell changes
+    with torch.no_grad():
+        diff = (layer(y) - layer(x)).abs().amax(dim=1)[0]
+    # after row- then column-attention, a cell reaches its row and every column that the
+    # row reached: here the whole grid can change, but only through those paths
+    assert diff[2].min() > 0 and diff[:, 3].min() > 0
+    rows_only = layer._rows(y, 0) - layer._rows(x, 0)
+    touched = rows_only.abs().amax(dim=1)[0] > 0
+    assert touched[2].all() and not touched[[0, 1, 3, 4, 5]].any()
+
+
+def test_axial_levels_are_a_setting():
+    net = UNet(UNetConfig(**TINY_UNET, axial_levels=(0,)))
+    assert sum(type(m).__name__ == "AxialAttention" for m in net.modules()) == 3
+    assert net(torch.randn(2, 2, 9, 9), torch.tensor([1.0, 500.0])).shape == (2, 2, 9, 9)
+    with pytest.raises(ValueError, match="axial_levels"):
+        UNetConfig(axial_levels=(3,))

@@ -29,6 +29,10 @@ class UNetConfig:
     #: makes large grids slow, so the default keeps it to the coarsest level.
     attention_levels: tuple[int, ...] = (2,)
     middle_attention: bool = True
+    #: levels whose res blocks are followed by axial attention: each cell attends to its
+    #: row, then to its column (O(k^3), cheap at full resolution). Net structure constrains
+    #: whole rows and columns of cells (every 1/n strip holds one point).
+    axial_levels: tuple[int, ...] = ()
     num_heads: int = 4
     padding: str = "zeros"
     #: extra input channels: bits 0..coord_bits-1 of each cell's column and row index,
@@ -39,11 +43,12 @@ class UNetConfig:
     def __post_init__(self) -> None:
         if self.padding not in PADDINGS:
             raise ValueError(f"padding must be one of {PADDINGS}, got {self.padding!r}")
-        if any(not 0 <= l < len(self.channel_mult) for l in self.attention_levels):
-            raise ValueError(f"attention_levels {self.attention_levels} outside "
-                             f"0..{len(self.channel_mult) - 1}")
+        for name in ("attention_levels", "axial_levels"):
+            levels = tuple(getattr(self, name))
+            if any(not 0 <= l < len(self.channel_mult) for l in levels):
+                raise ValueError(f"{name} {levels} outside 0..{len(self.channel_mult) - 1}")
+            object.__setattr__(self, name, levels)
         object.__setattr__(self, "channel_mult", tuple(self.channel_mult))
-        object.__setattr__(self, "attention_levels", tuple(self.attention_levels))
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -103,6 +108,33 @@ class Attention(nn.Module):
         return x + self.proj(out)
 
 
+class AxialAttention(nn.Module):
+    """Multi-head self-attention within each row of cells, then within each column."""
+
+    def __init__(self, ch: int, heads: int, groups: int):
+        super().__init__()
+        self.heads = heads
+        self.norms = nn.ModuleList([nn.GroupNorm(groups, ch) for _ in range(2)])
+        self.qkvs = nn.ModuleList([nn.Conv2d(ch, 3 * ch, 1) for _ in range(2)])
+        self.projs = nn.ModuleList([nn.Conv2d(ch, ch, 1) for _ in range(2)])
+        for p in self.projs:
+            nn.init.zeros_(p.weight)
+            nn.init.zeros_(p.bias)
+
+    def _rows(self, x: torch.Tensor, i: int) -> torch.Tensor:
+        b, c, h, w = x.shape
+        qkv = self.qkvs[i](self.norms[i](x)).reshape(b, 3, self.heads, c // self.heads, h, w)
+        q, k, v = qkv[:, 0], qkv[:, 1], qkv[:, 2]  # (b, heads, d, h, w)
+        scale = (c // self.heads) ** -0.5
+        attn = torch.softmax(torch.einsum("bndhi,bndhj->bnhij", q * scale, k), dim=-1)
+        out = torch.einsum("bnhij,bndhj->bndhi", attn, v).reshape(b, c, h, w)
+        return x + self.projs[i](out)
+
+    def forward(self, x: torch.Tensor, emb: torch.Tensor | None = None) -> torch.Tensor:
+        x = self._rows(x, 0)
+        return self._rows(x.transpose(2, 3), 1).transpose(2, 3)
+
+
 class UNet(nn.Module):
     """eps-prediction U-Net: (B, 2, k, k) noisy offsets and (B,) timesteps -> (B, 2, k, k)."""
 
@@ -124,6 +156,8 @@ class UNet(nn.Module):
                 cur = ch * mult
                 if level in cfg.attention_levels:
                     layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                if level in cfg.axial_levels:
+                    layers.append(AxialAttention(cur, cfg.num_heads, cfg.groups))
                 self.down.append(nn.ModuleList(layers))
                 skips.append(cur)
             if level < len(cfg.channel_mult) - 1:
@@ -142,6 +176,8 @@ class UNet(nn.Module):
                 cur = ch * mult
                 if level in cfg.attention_levels:
                     layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                if level in cfg.axial_levels:
+                    layers.append(AxialAttention(cur, cfg.num_heads, cfg.groups))
                 if level > 0 and i == cfg.num_res_blocks:
                     layers.append(_conv(cur, cur, cfg.padding))  # after upsampling
                 self.up.append(nn.ModuleList(layers))
