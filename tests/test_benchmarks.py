@@ -1,0 +1,18 @@
+"""The benchmark scripts run end to end (tiny sizes)."""
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_fidelity_report_runs(tmp_path):
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path / "cache")}
+    res = subprocess.run([sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen",
+                          "--sizes", "64", "--sets", "3", "--workers", "1",
+                          "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "| 64 | 3 |" in md and "empty el. intervals" in md
+    assert (tmp_path / "out" / "fidelity.json").exists()
