@@ -99,6 +99,17 @@ def ref_count(sampler: str, n: int, sets: int, slow_sets: int, slow_4096: int) -
     return sets if n == 1024 else slow_sets
 
 
+def reference(pool, sampler: str, n: int, a):
+    """Both reference batches (one cached draw, seed 1: A = first half, B = second) and
+    their per-set statistics (after unwarping for non-uniform samplers), cached."""
+    count = ref_count(sampler, n, a.sets, a.slow_sets, a.slow_4096)
+    ref, per_set, _ = cached_sets(pool, sampler, n, 2 * count, 1)
+    unwarp = UNWARP.get(sampler)
+    rstats = cached_stats(pool, f"{sampler}_n{n}_c{2 * count}_s1" + ("_unwarped" if unwarp else ""),
+                          unwarp(ref) if unwarp else ref)
+    return count, ref, per_set, rstats
+
+
 def evaluate(pool, name: str, a) -> dict:
     model = diffsampler_rt.load(name)
     card = model.card
@@ -106,16 +117,11 @@ def evaluate(pool, name: str, a) -> dict:
     unwarp = UNWARP.get(sampler)
     res = {"name": name, "sampler": sampler, "card": card, "rows": {}}
     for n in a.sizes:
-        count = ref_count(sampler, n, a.sets, a.slow_sets, a.slow_4096)
-        # both reference batches in one cached draw (seed 1): A = first half, B = second
-        ref, ref_per_set, _ = cached_sets(pool, sampler, n, 2 * count, 1)
+        count, ref, ref_per_set, rstats = reference(pool, sampler, n, a)
         t = time.perf_counter()
         gen = model.generate(n, count, seed=a.seed)
         gen_per_set = (time.perf_counter() - t) / count
         ref_a, ref_b = ref[:count], ref[count:]
-        rstats = cached_stats(pool, f"{sampler}_n{n}_c{2 * count}_s1"
-                              + ("_unwarped" if unwarp else ""),
-                              unwarp(ref) if unwarp else ref)
         gu = unwarp(gen) if unwarp else gen
         ru_a, ru_b = (unwarp(ref_a), unwarp(ref_b)) if unwarp else (ref_a, ref_b)
         gstats = set_stats(pool, gu)
@@ -262,10 +268,20 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
+                   help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
     models = a.models or [m for m in diffsampler_rt.list_models()]
     a.out.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
+        if a.references_only:
+            for sampler in a.references_only:
+                for n in a.sizes:
+                    t = time.perf_counter()
+                    count = reference(pool, sampler, n, a)[0]
+                    print(f"{sampler} n={n}: 2 x {count} reference sets and statistics "
+                          f"({time.perf_counter() - t:.0f} s)", flush=True)
+            return
         results = [evaluate(pool, m, a) for m in models]
     report(results, a)
     print(f"wrote {a.out / 'fidelity.md'}")

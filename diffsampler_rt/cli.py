@@ -16,6 +16,8 @@ from typing import IO
 
 import numpy as np
 
+from .solvers import SOLVERS
+
 FORMATS = ("txt", "npy", "csv")
 
 
@@ -88,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--count", type=int, default=None, help="number of sets (default 1)")
     g.add_argument("--seed", type=int, default=None)
     g.add_argument("--steps", type=int, default=None, help="denoising steps")
-    g.add_argument("--solver", default="ddim", choices=["ddim", "ddpm"])
+    g.add_argument("--solver", default="ddim", choices=list(SOLVERS))
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
