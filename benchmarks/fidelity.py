@@ -155,6 +155,34 @@ def _fmt_rel(d: dict, tol: float) -> str:
     return f"{100 * d['rel']:+.1f} %{mark} ({100 * d['floor']:+.1f})"
 
 
+def model_card_text(c: dict) -> str:
+    """The model card in a sentence or three: data, architecture, training, sampling."""
+    cfg = c.get("config", {})
+    d, u = cfg.get("data", {}), cfg.get("unet", {})
+    pools = d.get("pool_sizes") or []
+    if any(pools):
+        data = ", ".join(f"{p} sets at k = {k}" for k, p in zip(d.get("sizes", []), pools))
+        if d.get("shifts", 1) > 1:
+            data += f", each also under {d['shifts'] - 1} random toroidal shifts"
+    else:
+        data = "fresh sets every step"
+    sym = d.get("symmetries", [0])
+    data += f"; symmetries of the square used: {sym}" if len(sym) > 1 else "; no symmetries"
+    params = c.get("parameters")
+    arch = (f"U-Net base {u.get('base_channels')}, levels {u.get('channel_mult')}, attention at "
+            f"{u.get('attention_levels')}" + (f", axial attention at {u['axial_levels']}"
+                                              if u.get("axial_levels") else "")
+            + (f", {u['coord_bits']} dyadic coordinate bits" if u.get("coord_bits") else "")
+            + (f", {params / 1e6:.2f} M parameters" if params else ""))
+    secs = c.get("train_seconds")
+    train = (f"{c['training_steps']} steps (batches {d.get('batch_sizes')} at k = "
+             f"{d.get('sizes')})" + (f", {secs / 60:.0f} min with {cfg.get('threads', 1)} CPU thread(s)" if secs else "")
+             + (", bf16 autocast" if cfg.get("bf16") else ""))
+    return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
+            f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "
+            f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps.")
+
+
 def report(results: list[dict], a) -> None:
     out = a.out
     lines = [
@@ -195,10 +223,7 @@ def report(results: list[dict], a) -> None:
                                   for k in STATS) + " |")
     for r in results:
         c = r["card"]
-        lines += ["", f"## {r['name']}", "",
-                  f"sampler `{r['sampler']}`, embedding `{c['embedding']}`, trained on n = "
-                  f"{c['trained_sizes']} for {c['training_steps']} steps; sampled with "
-                  f"{c.get('default_solver', 'DDIM')} {c['default_steps']} steps.", "",
+        lines += ["", f"## {r['name']}", "", model_card_text(c), "",
                   "| n | sets | spectrum MAE (floor) | OT energy | L2* | Gauss MSE | "
                   "Heaviside MSE | min dist | extra | gen ms/set | ref ms/set |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]

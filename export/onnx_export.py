@@ -29,7 +29,8 @@ DEFAULT_LICENCE = ("MIT. Weights trained by diffsampler from synthetic point set
 
 
 def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | None = None,
-               weights: str = "fp32", extra: dict[str, Any] | None = None) -> dict[str, Any]:
+               weights: str = "fp32", parameters: int | None = None,
+               extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """The metadata the runtime needs, plus provenance. All values are JSON."""
     card = {
         "format_version": FORMAT_VERSION,
@@ -41,6 +42,8 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "prediction": "eps",
         "schedule": dict(cfg.schedule),
         "training_steps": int(training_steps),
+        "train_seconds": None if train_seconds is None else round(float(train_seconds)),
+        "parameters": parameters,
         "trained_sizes": [k * k for k in cfg.data.sizes],
         "trained_sides": list(cfg.data.sizes),
         "min_side": MIN_SIDE,
@@ -144,7 +147,8 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
     net, cfg = model_from_checkpoint(state, ema=True)
     if fp16_weights:
         round_to_fp16(net)
-    card = model_card(cfg, training_steps=state["step"], train_seconds=state.get("elapsed_s"))
+    card = model_card(cfg, training_steps=state["step"], train_seconds=state.get("elapsed_s"),
+                      parameters=sum(p.numel() for p in net.parameters()))
     out = export_model(net, card, path, fp16_weights=fp16_weights)
     diffs = check_parity(net, out, sides=parity_sides, tolerance=tolerance) if parity_sides else {}
     return out, diffs
