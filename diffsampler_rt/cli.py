@@ -1,6 +1,7 @@
 """``diffsampler``: generate point sets from the command line.
 
     diffsampler generate MODEL N [--count C] [--seed S] [--steps T] [--format txt|npy|csv] [-o FILE]
+    diffsampler plot MODEL N [--count C] [--seed S] -o FIG.png   (or: plot POINTS.npy -o FIG.png)
     diffsampler list
     diffsampler info MODEL
 
@@ -61,6 +62,24 @@ def _cmd_generate(args: argparse.Namespace) -> None:
             _write(pts, fmt, fh)
 
 
+def _cmd_plot(args: argparse.Namespace) -> None:
+    from .plot import plot_sets
+    if str(args.source).endswith(".npy"):
+        if args.n is not None:
+            raise ValueError("N is taken from the points file; leave it out with a .npy source")
+        pts = np.load(args.source)
+        title = Path(args.source).stem
+    else:
+        from .model import load
+        if args.n is None:
+            raise ValueError("plotting a model needs N, the number of points per set")
+        model = load(args.source)
+        pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,
+                             solver=args.solver)
+        title = model.name
+    plot_sets(pts, title=title, path=args.output)
+
+
 def _cmd_list(args: argparse.Namespace) -> None:
     from .model import MODELS_DIR, bundled_models, load
     for name in bundled_models():
@@ -95,6 +114,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
     g.set_defaults(func=_cmd_generate)
+    pl = sub.add_parser("plot", help="points, 2-d and radial power spectrum as a figure")
+    pl.add_argument("source", help="bundled model name, .onnx path, or a .npy file of points")
+    pl.add_argument("n", type=int, nargs="?", default=None, help="points per set (models)")
+    pl.add_argument("--count", type=int, default=16, help="sets averaged in the spectra")
+    pl.add_argument("--seed", type=int, default=None)
+    pl.add_argument("--steps", type=int, default=None)
+    pl.add_argument("--solver", default="ddim", choices=list(SOLVERS))
+    pl.add_argument("-o", "--output", type=Path, required=True, help=".png, .pdf or .svg")
+    pl.set_defaults(func=_cmd_plot)
     lst = sub.add_parser("list", help="list the bundled models")
     lst.set_defaults(func=_cmd_list)
     info = sub.add_parser("info", help="show a model's card")
@@ -105,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         args.func(args)
-    except (ValueError, TypeError, OSError) as exc:  # DiffsamplerError subclasses these
+    except (ValueError, TypeError, OSError, ImportError) as exc:  # DiffsamplerError: ValueError/OSError
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"diffsampler: error: {msg}", file=sys.stderr)
         return 2
