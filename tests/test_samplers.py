@@ -162,3 +162,32 @@ def test_unwarping_maps_the_density_to_the_uniform_square(name):
     # monotone in x along a row (the first coordinate is the x-marginal's CDF)
     t = np.linspace(0, 1, 50, endpoint=False)
     assert np.all(np.diff(UNWARP[name](np.column_stack([t, np.full(50, 0.3)]))[:, 0]) > 0)
+
+
+def test_concentric_map_commutes_with_the_square_symmetries():
+    """Why SOT may be augmented with all 8 symmetries: the disk process is isotropic and the
+    map to the square carries the disk's mirrors and diagonal swap to the square's."""
+    from trainer.samplers.sot import disk_to_square
+    rng = np.random.default_rng(0)
+    r, a = np.sqrt(rng.random(500)), 2 * np.pi * rng.random(500)
+    p = np.stack([r * np.cos(a), r * np.sin(a)], 1)
+    q = disk_to_square(p)
+    np.testing.assert_allclose(disk_to_square(p * [-1, 1]), np.stack([1 - q[:, 0], q[:, 1]], 1),
+                               atol=1e-12)
+    np.testing.assert_allclose(disk_to_square(p * [1, -1]), np.stack([q[:, 0], 1 - q[:, 1]], 1),
+                               atol=1e-12)
+    np.testing.assert_allclose(disk_to_square(p[:, ::-1]), q[:, ::-1], atol=1e-12)
+
+
+def test_half_turn_maps_a_shifted_lattice_to_a_shifted_lattice():
+    """Why the lattices are augmented with the half-turn only: (1 - x, 1 - y) of the lattice
+    with generator g is the same lattice, shifted; a mirror gives generator n - g."""
+    from trainer.samplers.lattice import p2_lattice
+    pts = p2_lattice(64, 1, np.random.default_rng(0))[0]
+    turned = 1.0 - pts
+    d = (turned - turned[0]) % 1.0
+    base = (pts - pts[0]) % 1.0
+    key = lambda z: set(map(tuple, np.round(z * 64).astype(int) % 64))
+    assert key(d) == key(base)
+    mirrored = np.stack([1.0 - pts[:, 0], pts[:, 1]], 1)
+    assert key((mirrored - mirrored[0]) % 1.0) != key(base)
