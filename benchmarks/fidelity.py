@@ -81,6 +81,13 @@ def cached_stats(pool, key: str, pts: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+def jittered(n: int, count: int) -> np.ndarray:
+    """Jittered (one uniform point per grid cell) sets: the baseline for net structure."""
+    k = int(round(np.sqrt(n)))
+    cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
+    return (cells[None] + np.random.default_rng(n).random((count, n, 2))) / k
+
+
 def chi2_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:
     """Per set: chi-square of the bins x bins histogram of unwarped points vs uniform."""
     idx = np.minimum((unwarped * bins).astype(int), bins - 1)
@@ -153,7 +160,8 @@ def evaluate(pool, name: str, a) -> dict:
             row["mae_seed_ref"] = spectrum_mae(sa, seed_curve(sampler))
         if sampler == "sobol_owen" and n & (n - 1) == 0:
             row["empty"] = (float(empty_elementary_fraction(gen).mean()),
-                            float(empty_elementary_fraction(ref_a).mean()))
+                            float(empty_elementary_fraction(ref_a).mean()),
+                            float(empty_elementary_fraction(jittered(n, count)).mean()))
         if sampler == "ldbn":
             row["strat"] = (float(stratified_projections(gen).mean()),
                             float(stratified_projections(ref_a).mean()))
@@ -246,7 +254,8 @@ def report(results: list[dict], a) -> None:
         for n, row in r["rows"].items():
             extra = ""
             if "empty" in row:
-                extra = f"empty el. intervals {100 * row['empty'][0]:.1f} % (ref {100 * row['empty'][1]:.1f} %)"
+                extra = (f"empty el. intervals {100 * row['empty'][0]:.1f} % (ref "
+                         f"{100 * row['empty'][1]:.1f} %, jittered {100 * row['empty'][2]:.1f} %)")
             if "strat" in row:
                 extra = (f"1-d stratified {100 * row['strat'][0]:.0f} % of sets "
                          f"(ref {100 * row['strat'][1]:.0f} %)")
