@@ -15,7 +15,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import ConvexHull
 
-_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+_SQUARE = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
 
 
 def _neighbours(x: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -29,21 +29,26 @@ def _neighbours(x: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.unique(e, axis=0)
 
 
-def _clip(poly: list, labels: list, a: np.ndarray, c: float, label: int):
-    """Clip polygon (vertices, edge labels) by the half-plane a . y <= c."""
+def _clip(poly: list, labels: list, ax: float, ay: float, c: float, label: int):
+    """Clip polygon (vertex tuples, edge labels) by the half-plane ax y0 + ay y1 <= c.
+
+    Plain Python floats: for these 4-8 vertex polygons numpy's per-call overhead would
+    dominate (this loop is most of the time of an OT energy)."""
     out, out_l = [], []
     m = len(poly)
     for k in range(m):
         p, q, lab = poly[k], poly[(k + 1) % m], labels[k]
-        sp, sq = a @ p - c, a @ q - c
+        sp, sq = ax * p[0] + ay * p[1] - c, ax * q[0] + ay * q[1] - c
         if sp <= 0:
             out.append(p)
             out_l.append(lab)
             if sq > 0:
-                out.append(p + (q - p) * (sp / (sp - sq)))
+                t = sp / (sp - sq)
+                out.append((p[0] + (q[0] - p[0]) * t, p[1] + (q[1] - p[1]) * t))
                 out_l.append(label)
         elif sq <= 0:
-            out.append(p + (q - p) * (sp / (sp - sq)))
+            t = sp / (sp - sq)
+            out.append((p[0] + (q[0] - p[0]) * t, p[1] + (q[1] - p[1]) * t))
             out_l.append(lab)
     return out, out_l
 
@@ -56,30 +61,40 @@ def _cells(x: np.ndarray, w: np.ndarray):
     for i, j in pairs:
         nbrs[i].append(j)
         nbrs[j].append(i)
-    sq = (x * x).sum(1)
-    area = np.zeros(n)
-    moment = np.zeros(n)
-    edges: dict[tuple[int, int], float] = {}
+    xs = x.tolist()
+    sqw = ((x * x).sum(1) - w).tolist()
+    # every cell's polygon edges (p -> q), its owner and the neighbour across it, flattened
+    ps: list = []
+    qs: list = []
+    owner: list[int] = []
+    across: list[int] = []
     for i in range(n):
         poly, labels = list(_SQUARE), [-1, -1, -1, -1]
+        xi0, xi1, ci = xs[i][0], xs[i][1], sqw[i]
         for j in nbrs[i]:
             # |y - x_i|^2 - w_i <= |y - x_j|^2 - w_j  <=>  2 (x_j - x_i) . y <= sq_j - sq_i - w_j + w_i
-            poly, labels = _clip(poly, labels, 2 * (x[j] - x[i]),
-                                 sq[j] - sq[i] - w[j] + w[i], j)
+            poly, labels = _clip(poly, labels, 2 * (xs[j][0] - xi0), 2 * (xs[j][1] - xi1),
+                                 sqw[j] - ci, j)
             if len(poly) < 3:
                 break
         if len(poly) < 3:
             continue
-        P = np.array(poly) - x[i]
-        Q = np.roll(P, -1, axis=0)
-        cross = P[:, 0] * Q[:, 1] - P[:, 1] * Q[:, 0]
-        area[i] = cross.sum() / 2
-        # second moment of a polygon about the origin: sum cross (|p|^2 + p.q + |q|^2) / 12
-        moment[i] = (cross * ((P * P).sum(1) + (P * Q).sum(1) + (Q * Q).sum(1))).sum() / 12
-        L = np.linalg.norm(Q - P, axis=1)
-        for lab, length in zip(labels, L):
-            if lab >= 0 and i < lab:
-                edges[(i, lab)] = length
+        ps += poly
+        qs += poly[1:] + poly[:1]
+        owner += [i] * len(poly)
+        across += labels
+    own = np.array(owner)
+    P = np.array(ps) - x[own]
+    Q = np.array(qs) - x[own]
+    cross = P[:, 0] * Q[:, 1] - P[:, 1] * Q[:, 0]
+    area = np.bincount(own, cross, minlength=n) / 2
+    # second moment of a polygon about the origin: sum cross (|p|^2 + p.q + |q|^2) / 12
+    moment = np.bincount(own, cross * ((P * P).sum(1) + (P * Q).sum(1) + (Q * Q).sum(1)),
+                         minlength=n) / 12
+    L = np.linalg.norm(Q - P, axis=1)
+    lab = np.array(across)
+    keep = (lab >= 0) & (own < lab)
+    edges = dict(zip(zip(own[keep].tolist(), lab[keep].tolist()), L[keep].tolist()))
     return area, moment, edges
 
 
