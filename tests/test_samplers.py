@@ -138,6 +138,12 @@ def test_ldbn_table_and_stratification():
     check_table(load_table())
     for k in (16, 32, 64):
         assert np.all(stratified_projections(sample("ldbn", k * k, count=4, seed=k)))
+    # one point per grid cell at every size and under all 8 symmetries (sizes where the
+    # points are not on the 1/n lattice once broke the mirrors)
+    for k in (8, 16, 24, 40):
+        cells = np.floor(sample("ldbn", k * k, count=32, seed=k) * k).astype(int)
+        ids = cells[..., 1] * k + cells[..., 0]
+        assert all(len(np.unique(i)) == k * k for i in ids), k
     with pytest.raises(ValueError, match="ldbn needs a square number of points"):
         sample("ldbn", 1000)
     bad = load_table().copy()

@@ -51,13 +51,26 @@ def check_table(table: np.ndarray) -> None:
         raise ValueError("table nibbles are not permutations along aligned runs of 16")
 
 
-def points_from_table(table: np.ndarray, k: int, ox: int = 0, oy: int = 0) -> np.ndarray:
-    """The k*k LDBN points (row-major cells) of ``table`` read at offset (ox, oy)."""
+def _parts(table: np.ndarray, k: int, ox: int, oy: int):
+    """Cell indices X, Y and in-cell dyadic offsets u, v of the k*k points (row-major)."""
     X, Y = np.meshgrid(np.arange(k), np.arange(k))
     L = table[(Y + oy) % SIZE, (X + ox) % SIZE].astype(np.int64)
     u = radical_inverse(RUN * (Y // RUN) + (L & 15))
     v = radical_inverse(RUN * (X // RUN) + (L >> 4))
-    return np.stack([(X + u) / k, (Y + v) / k], axis=-1).reshape(-1, 2)
+    return X.ravel(), Y.ravel(), u.ravel(), v.ravel()
+
+
+def points_from_table(table: np.ndarray, k: int, ox: int = 0, oy: int = 0) -> np.ndarray:
+    """The k*k LDBN points (row-major cells) of ``table`` read at offset (ox, oy)."""
+    X, Y, u, v = _parts(table, k, ox, oy)
+    return np.stack([(X + u) / k, (Y + v) / k], axis=-1)
+
+
+def offset_bits(k: int) -> int:
+    """2^b for the b bits of the radical inverses in a k x k set (k for k a power of two
+    >= 16, so the points sit on the 1/n lattice)."""
+    top = RUN * ((k + RUN - 1) // RUN)  # radical-inverse arguments are < top
+    return 1 << (top - 1).bit_length()
 
 
 def ldbn(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -66,16 +79,19 @@ def ldbn(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
     if k * k != n:
         raise ValueError(f"ldbn needs a square number of points (k*k), got n={n}")
     table = load_table()
+    top = 1 - 1 / offset_bits(k)
     out = np.empty((count, n, 2))
     for c in range(count):
         ox, oy = RUN * rng.integers(SIZE // RUN, size=2)
-        p = points_from_table(table, k, int(ox), int(oy))
+        X, Y, u, v = _parts(table, k, int(ox), int(oy))
         w = int(rng.integers(8))
+        # mirrors act on the integer cell and the dyadic offset separately (both exact), so
+        # cells map onto cells and lattice strips onto strips
         if w & 1:
-            p[:, 0] = ((n - 1) / n - p[:, 0]) % 1.0
+            X, u = k - 1 - X, top - u
         if w & 2:
-            p[:, 1] = ((n - 1) / n - p[:, 1]) % 1.0
+            Y, v = k - 1 - Y, top - v
         if w & 4:
-            p = p[:, ::-1]
-        out[c] = p
+            X, Y, u, v = Y, X, v, u
+        out[c] = np.stack([(X + u) / k, (Y + v) / k], axis=-1)
     return np.clip(out, 0.0, np.nextafter(1.0, 0.0))
