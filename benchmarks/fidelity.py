@@ -11,15 +11,21 @@ the uniform square, plus a density check (chi-square of an 8 x 8 histogram of th
 points; its expected value is 63 for a set that follows the density).
 
 Reference sets and their statistics are cached under ~/.cache/diffsampler/reference (they
-are deterministic in their seeds); generated sets are made in the run.
-Writes benchmarks/results/fidelity.md and benchmarks/results/fidelity/<model>.png.
+are deterministic in their seeds); generated sets are made in the run. Each model's results
+are kept in benchmarks/results/fidelity/<model>.json together with the hash of the model file
+and the run's settings, so models can be measured one at a time (e.g. as they finish
+training) and the report always covers every bundled model: a model whose file changed since
+its measurement is listed as not measured. Writes benchmarks/results/fidelity.md,
+fidelity.json and fidelity/<model>.png.
 
     python benchmarks/fidelity.py [--models gbn sot] [--sets 128] [--workers 2]
+    python benchmarks/fidelity.py --report-only   # rebuild the report from kept results
 """
 from __future__ import annotations
 
 import argparse
 import datetime as dt
+import hashlib
 import json
 import os
 import sys
@@ -136,7 +142,9 @@ def evaluate(pool, name: str, a) -> dict:
     card = model.card
     sampler = card["sampler"]
     unwarp = UNWARP.get(sampler)
-    res = {"name": name, "sampler": sampler, "card": card, "rows": {}}
+    res = {"name": name, "sampler": sampler, "card": card, "rows": {},
+           "model_sha256": model_hash(name), "settings": settings(a),
+           "date": dt.date.today().isoformat()}
     for n in a.sizes:
         count, scount, ref_a, ref_b, ref_per_set, stats_a, stats_b = reference(pool, sampler, n, a)
         t = time.perf_counter()
@@ -173,6 +181,54 @@ def evaluate(pool, name: str, a) -> dict:
     return res
 
 
+def model_hash(name: str) -> str:
+    return hashlib.sha256(diffsampler_rt.model.resolve(name).read_bytes()).hexdigest()
+
+
+def settings(a) -> dict:
+    return {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
+            "spectrum_sets": a.spectrum_sets, "seed": a.seed}
+
+
+def _jsonable(v):
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    return v
+
+
+def save_result(r: dict, out: Path) -> None:
+    """Keep one model's result (its plot is drawn now: the example sets are not kept)."""
+    plot(r, out / "fidelity" / f"{r['name']}.png")
+    rows = {n: {k: v for k, v in row.items() if not k.startswith("example_")}
+            for n, row in r["rows"].items()}
+    (out / "fidelity").mkdir(parents=True, exist_ok=True)
+    (out / "fidelity" / f"{r['name']}.json").write_text(
+        json.dumps(_jsonable({**r, "rows": rows}), indent=1))
+
+
+def kept_results(out: Path, models: list[str]) -> tuple[list[dict], list[str]]:
+    """Kept results of ``models`` whose model file is unchanged, and the names without one."""
+    found, missing = [], []
+    for m in models:
+        path = out / "fidelity" / f"{m}.json"
+        r = json.loads(path.read_text()) if path.exists() else None
+        if r is None or r.get("model_sha256") != model_hash(m):
+            missing.append(m)
+            continue
+        r["rows"] = {int(n): row for n, row in r["rows"].items()}
+        for row in r["rows"].values():
+            for k in ("spec_gen", "spec_ref"):
+                row[k] = np.asarray(row[k])
+        found.append(r)
+    return found, missing
+
+
 def _fmt_rel(d: dict, tol: float) -> str:
     mark = "" if abs(d["rel"]) <= tol else " ✗"
     return f"{100 * d['rel']:+.1f} %{mark} ({100 * d['floor']:+.1f})"
@@ -206,13 +262,16 @@ def model_card_text(c: dict) -> str:
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps.")
 
 
-def report(results: list[dict], a) -> None:
-    out = a.out
+def report(results: list[dict], missing: list[str], out: Path) -> None:
+    runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results})
+    how = "; ".join(
+        f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
+        f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}` on {d}"
+        for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
         "",
-        f"`python benchmarks/fidelity.py --sets {a.sets} --slow-sets {a.slow_sets} "
-        f"--slow-4096 {a.slow_4096} --spectrum-sets {a.spectrum_sets}` on {dt.date.today().isoformat()}, {os.cpu_count()} cores. "
+        f"{how} ({os.cpu_count()} cores). "
         "Generated sets (default solver and steps of each model card) and reference sets are "
         "compared in the same run; *sets* is the number per side. Reference batch A is "
         "compared with the model; batch B, drawn independently, gives the **noise floor**: "
@@ -245,6 +304,9 @@ def report(results: list[dict], a) -> None:
                      f"{tgt if tgt is not None else ''} | {met} | {seed} | "
                      + " | ".join(_fmt_rel(row[k], TOL_MIND if k == "min_distance" else TOL_MEAN)
                                   for k in STATS) + " |")
+    if missing:
+        lines += ["", "**Not measured yet** (bundled, but no result for the current model file): "
+                  + ", ".join(missing) + "."]
     for r in results:
         c = r["card"]
         lines += ["", f"## {r['name']}", "", model_card_text(c), "",
@@ -268,13 +330,12 @@ def report(results: list[dict], a) -> None:
                                       for k in STATS)
                          + f" | {extra} | {row['gen_ms']:.0f} | {row['ref_ms']:.0f} |")
         lines += ["", f"![{r['name']}](fidelity/{r['name']}.png)"]
-        plot(r, out / "fidelity" / f"{r['name']}.png")
     lines.append("")
     (out / "fidelity.md").write_text("\n".join(lines))
     summary = {r["name"]: {str(n): {k: v for k, v in row.items()
                                     if not k.startswith(("spec_", "example_"))}
                            for n, row in r["rows"].items()} for r in results}
-    (out / "fidelity.json").write_text(json.dumps(summary, indent=1))
+    (out / "fidelity.json").write_text(json.dumps(_jsonable(summary), indent=1))
 
 
 def plot(r: dict, path: Path) -> None:
@@ -322,10 +383,13 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    p.add_argument("--report-only", action="store_true",
+                   help="only rebuild fidelity.md from the kept per-model results")
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
                    help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
-    models = a.models or [m for m in diffsampler_rt.list_models()]
+    bundled = diffsampler_rt.list_models()
+    models = [] if a.report_only else (a.models or bundled)
     a.out.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         if a.references_only:
@@ -336,8 +400,9 @@ def main() -> None:
                     print(f"{sampler} n={n}: 2 x {count} reference sets and statistics "
                           f"({time.perf_counter() - t:.0f} s)", flush=True)
             return
-        results = [evaluate(pool, m, a) for m in models]
-    report(results, a)
+        for m in models:
+            save_result(evaluate(pool, m, a), a.out)
+    report(*kept_results(a.out, bundled), a.out)
     print(f"wrote {a.out / 'fidelity.md'}")
 
 
