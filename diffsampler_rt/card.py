@@ -10,6 +10,7 @@ from typing import Any, Mapping
 
 from .errors import ModelFormatError
 from .schedule import betas
+from .solvers import SOLVERS
 
 FORMAT_KEY = "diffsampler.format"
 CARD_KEY = "diffsampler.card"
@@ -43,6 +44,9 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
                                    f"wrong type ({card.get(key)!r})")
     if card["embedding"] not in ("stratified", "ot"):
         raise ModelFormatError(f"{source}: unknown embedding {card['embedding']!r}")
+    if card.get("default_solver", "ddim") not in SOLVERS:
+        raise ModelFormatError(f"{source}: unknown default solver {card['default_solver']!r}")
+    card.setdefault("default_solver", "ddim")  # cards written before the field existed
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:

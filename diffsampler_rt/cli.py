@@ -86,7 +86,7 @@ def _cmd_list(args: argparse.Namespace) -> None:
         card = load(name).card
         size = (MODELS_DIR / f"{name}.onnx").stat().st_size / 2**20
         print(f"{name:<14} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
-              f"trained n={card['trained_sizes']} steps={card['default_steps']} "
+              f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
               f"({size:.1f} MiB)")
 
 
@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--count", type=int, default=None, help="number of sets (default 1)")
     g.add_argument("--seed", type=int, default=None)
     g.add_argument("--steps", type=int, default=None, help="denoising steps")
-    g.add_argument("--solver", default="ddim", choices=list(SOLVERS))
+    g.add_argument("--solver", default=None, choices=list(SOLVERS),
+                   help="default: the model card's")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
@@ -120,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     pl.add_argument("--count", type=int, default=16, help="sets averaged in the spectra")
     pl.add_argument("--seed", type=int, default=None)
     pl.add_argument("--steps", type=int, default=None)
-    pl.add_argument("--solver", default="ddim", choices=list(SOLVERS))
+    pl.add_argument("--solver", default=None, choices=list(SOLVERS),
+                    help="default: the model card's")
     pl.add_argument("-o", "--output", type=Path, required=True, help=".png, .pdf or .svg")
     pl.set_defaults(func=_cmd_plot)
     lst = sub.add_parser("list", help="list the bundled models")

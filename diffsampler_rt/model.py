@@ -100,7 +100,7 @@ class Model:
 
     def generate(self, n: int, count: int | None = None, *,
                  seed: int | np.random.Generator | None = None, steps: int | None = None,
-                 solver: str = "ddim", progress: bool = False) -> np.ndarray:
+                 solver: str | None = None, progress: bool = False) -> np.ndarray:
         """Generate point sets of ``n`` points with this model.
 
         Parameters
@@ -113,9 +113,10 @@ class Model:
             The same seed gives the same sets.
         steps : int, optional
             Denoiser evaluations (default: the model card's ``default_steps``).
-        solver : {"ddim", "ddpm", "dpmpp_2m"}
+        solver : {"ddim", "ddpm", "dpmpp_2m"}, optional
             Deterministic DDIM, ancestral DDPM on the same step grid, or the deterministic
             second-order multistep DPM-Solver++(2M) (one evaluation per step too).
+            Default: the model card's ``default_solver``.
         progress : bool
             Show a progress bar on stderr.
 
@@ -128,6 +129,7 @@ class Model:
         c = 1 if count is None else _validate.count(count)
         T = len(self.alpha_bar)
         s = self.card["default_steps"] if steps is None else _validate.steps(steps, T)
+        solver = self.card["default_solver"] if solver is None else solver
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
         rng = _validate.rng(seed)
@@ -174,7 +176,7 @@ def load(model: str | os.PathLike | Model) -> Model:
 
 def generate(model: str | os.PathLike | Model, n: int, count: int | None = None, *,
              seed: int | np.random.Generator | None = None, steps: int | None = None,
-             solver: str = "ddim", progress: bool = False) -> np.ndarray:
+             solver: str | None = None, progress: bool = False) -> np.ndarray:
     """Generate ``count`` point sets of ``n`` points from a learned sampler.
 
     Parameters

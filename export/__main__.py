@@ -1,4 +1,8 @@
-"""``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch."""
+"""``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
+
+``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]``: change the sampling
+defaults in an exported model's card.
+"""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +10,32 @@ import sys
 from pathlib import Path
 
 
+def set_defaults_main(argv: list[str]) -> int:
+    from diffsampler_rt.solvers import SOLVERS
+    p = argparse.ArgumentParser(prog="python -m export set-defaults",
+                                description="change the sampling defaults of a model card")
+    p.add_argument("model", type=Path)
+    p.add_argument("--solver", choices=list(SOLVERS))
+    p.add_argument("--steps", type=int)
+    args = p.parse_args(argv)
+    if not args.model.exists():
+        print(f"error: model {args.model} not found", file=sys.stderr)
+        return 2
+    from .defaults import set_defaults
+    try:
+        card = set_defaults(args.model, solver=args.solver, steps=args.steps)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
+          f"{card['default_steps']} steps")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["set-defaults"]:
+        return set_defaults_main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m export", description=__doc__)
     p.add_argument("checkpoint", type=Path, help="runs/<name>/checkpoint.pt")
     p.add_argument("-o", "--output", type=Path, required=True)

@@ -93,3 +93,27 @@ def test_runtime_loop_matches_a_torch_reference_loop(tiny_onnx):
     from diffsampler_rt.solvers import ddim
     got = ddim(m.denoise, x0, ab, ts)
     np.testing.assert_allclose(got, x.numpy(), atol=1e-4)
+
+
+def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
+    import shutil
+    import subprocess
+    import sys
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    assert diffsampler_rt.load(path).card["default_solver"] == "ddim"
+    card = set_defaults(path, solver="dpmpp_2m", steps=6)
+    assert (card["default_solver"], card["default_steps"]) == ("dpmpp_2m", 6)
+    m = diffsampler_rt.Model(path)
+    assert (m.card["default_solver"], m.card["default_steps"]) == ("dpmpp_2m", 6)
+    np.testing.assert_array_equal(m.generate(64, 2, seed=3),
+                                  m.generate(64, 2, seed=3, solver="dpmpp_2m", steps=6))
+    assert not np.array_equal(m.generate(64, 2, seed=3), m.generate(64, 2, seed=3, solver="ddim"))
+    with pytest.raises(ValueError, match="unknown solver 'rk4'"):
+        set_defaults(path, solver="rk4")
+    with pytest.raises(ValueError, match="at most the schedule"):
+        set_defaults(path, steps=10**6)
+    res = subprocess.run([sys.executable, "-m", "export", "set-defaults", str(path),
+                          "--steps", "0"], capture_output=True, text=True)
+    assert res.returncode == 2 and "steps must be a positive integer, got 0" in res.stderr

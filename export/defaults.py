@@ -1,0 +1,39 @@
+"""Change the sampling defaults (solver, steps) in an exported model's card.
+
+The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
+``steps``; they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after
+training, so they are edited in place rather than baked in at export.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import onnx
+
+from diffsampler_rt.card import CARD_KEY
+from diffsampler_rt.solvers import SOLVERS
+
+
+def set_defaults(path: str | Path, *, solver: str | None = None,
+                 steps: int | None = None) -> dict:
+    """Rewrite ``default_solver`` / ``default_steps`` of the card in ``path``; returns the card."""
+    if solver is not None and solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    model = onnx.load(str(path))
+    props = {p.key: p for p in model.metadata_props}
+    if CARD_KEY not in props:
+        raise ValueError(f"{path} has no diffsampler model card")
+    card = json.loads(props[CARD_KEY].value)
+    T = int(card["schedule"]["num_steps"])
+    if steps is not None and steps > T:
+        raise ValueError(f"steps must be at most the schedule's {T}, got {steps}")
+    if solver is not None:
+        card["default_solver"] = solver
+    if steps is not None:
+        card["default_steps"] = steps
+    props[CARD_KEY].value = json.dumps(card, sort_keys=True)
+    onnx.save(model, str(path))
+    return card
