@@ -1,0 +1,240 @@
+"""Generation speed of the bundled models next to their reference samplers, in one run.
+
+Per model and n: seconds per set for one set alone and amortised over a batch (default
+solver and steps of the model card, i.e. what ``diffsampler_rt.generate`` does), peak
+resident memory of the process, and the reference sampler's own time for one set, measured
+in the same run. Every measurement runs in a fresh child process (one at a time, so
+timings do not compete and the peak memory is that of the measurement alone). Reference
+samplers that are slow (iterative optimisers) are timed up to the size where one set would
+exceed --ref-budget seconds (estimated from the previous size; the report says which were
+skipped). Fidelity at the same default settings is quoted from
+benchmarks/results/fidelity.json. Writes benchmarks/results/speed.md and speed.png.
+
+    python benchmarks/speed.py [--models gbn sot] [--sizes 256 1024 4096 16384 65536]
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZES = (256, 1024, 4096, 16384, 65536)
+#: issue 5 targets at n = 1024 (2 cores): amortised over a batch of 32, and alone
+TARGET_BATCH_MS, TARGET_ALONE_MS = 50.0, 150.0
+
+
+def batch_for(n: int, batch: int) -> int:
+    """Sets per batch: ``batch`` up to 4096 points, then about 128 k points per batch."""
+    return batch if n <= 4096 else max(1, 131072 // n)
+
+
+# ---- children: one measurement each, printed as one JSON line ---------------------------
+
+def _peak_mib() -> float:
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
+def child_model(model: str, n: int, batch: int, repeats: int, threads: int | None) -> dict:
+    sys.path.insert(0, str(ROOT))
+    import numpy as np
+
+    import diffsampler_rt
+    t = time.perf_counter()
+    m = diffsampler_rt.Model(model, threads=threads)
+    load_s = time.perf_counter() - t
+    m.generate(n, seed=0)  # warm-up: onnxruntime plans its kernels per input shape
+    alone = []
+    for r in range(repeats):
+        t = time.perf_counter()
+        pts = m.generate(n, seed=r)
+        alone.append(time.perf_counter() - t)
+    assert pts.shape == (n, 2) and np.isfinite(pts).all()
+    out = {"load_s": load_s, "alone_s": float(np.median(alone)),
+           "solver": m.card["default_solver"], "steps": m.card["default_steps"]}
+    if batch > 1:
+        m.generate(n, batch, seed=0)
+        t = time.perf_counter()
+        m.generate(n, batch, seed=1)
+        out["batch"] = batch
+        out["batch_s_per_set"] = (time.perf_counter() - t) / batch
+    out["peak_mib"] = _peak_mib()
+    return out
+
+
+def child_reference(sampler: str, n: int) -> dict:
+    sys.path.insert(0, str(ROOT))
+    from trainer.samplers import sample
+    sample(sampler, 64, seed=0)  # imports, caches
+    t = time.perf_counter()
+    sample(sampler, n, seed=1)
+    return {"ref_s": time.perf_counter() - t, "peak_mib": _peak_mib()}
+
+
+def _run_child(args: list[str], timeout: float) -> dict | None:
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    try:
+        res = subprocess.run([sys.executable, __file__, "--child", *args], capture_output=True,
+                             text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        return None
+    if res.returncode != 0:
+        raise RuntimeError(f"child {args} failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+# ---- parent -----------------------------------------------------------------------------
+
+def fmt_s(s: float | None) -> str:
+    if s is None:
+        return "–"
+    return f"{1000 * s:.1f} ms" if s < 1 else f"{s:.2f} s"
+
+
+def measure(a) -> dict:
+    sys.path.insert(0, str(ROOT))
+    import diffsampler_rt
+    models = a.models or diffsampler_rt.list_models()
+    results: dict = {}
+    for name in models:
+        sampler = diffsampler_rt.load(name).card["sampler"]
+        rows = {}
+        ref_est = 0.0
+        prev_n, prev_ref = None, None
+        for n in a.sizes:
+            r = _run_child(["model", name, str(n), str(batch_for(n, a.batch)), str(a.repeats),
+                            str(a.threads or 0)], timeout=3600)
+            # reference sampler: skip when the estimate from the previous size is over budget
+            if prev_ref is not None:
+                ref_est = prev_ref * (n / prev_n) ** 1.5
+            if prev_ref is None or ref_est <= a.ref_budget:
+                ref = _run_child(["reference", sampler, str(n)], timeout=max(60, 4 * a.ref_budget))
+                r["ref_s"] = None if ref is None else ref["ref_s"]
+                r["ref_peak_mib"] = None if ref is None else ref["peak_mib"]
+                if ref is None:
+                    r["ref_note"] = f"> {4 * a.ref_budget:.0f} s (stopped)"
+            else:
+                r["ref_s"] = None
+                r["ref_note"] = f"not run (~{ref_est:.0f} s estimated)"
+            if r.get("ref_s") is not None:
+                prev_n, prev_ref = n, r["ref_s"]
+            elif prev_ref is not None and "stopped" in r.get("ref_note", ""):
+                prev_n, prev_ref = n, 4 * a.ref_budget
+            rows[n] = r
+            print(f"{name} n={n}: alone {fmt_s(r['alone_s'])}, batch "
+                  f"{fmt_s(r.get('batch_s_per_set'))}/set, peak {r['peak_mib']:.0f} MiB, "
+                  f"reference {fmt_s(r.get('ref_s'))} {r.get('ref_note', '')}", flush=True)
+        results[name] = {"sampler": sampler, "rows": rows}
+    return results
+
+
+def report(results: dict, a) -> None:
+    fid_path = ROOT / "benchmarks" / "results" / "fidelity.json"
+    fid = json.loads(fid_path.read_text()) if fid_path.exists() else {}
+    lines = [
+        "# Generation speed vs the reference samplers",
+        "",
+        f"`python benchmarks/speed.py` on {dt.date.today().isoformat()}: {os.cpu_count()} cores "
+        f"({platform.processor() or platform.machine()}), onnxruntime "
+        f"{_ort_version()}, intra-op threads: {a.threads or 'onnxruntime default (all cores)'}. "
+        "Each figure comes from a fresh process that does nothing else (median of "
+        f"{a.repeats} single-set runs after a warm-up; batches: one timed call after a warm-up "
+        "call). *alone*: one set per call; *batched*: the time per set of one call that "
+        "makes a batch of sets (32 up to 4096 points, then ~128 k points per call). "
+        "Default solver and steps of each model card. *peak*: peak resident memory of the "
+        "measuring process (model, onnxruntime arena, the set). Reference: one set of the "
+        "model's own reference sampler (`trainer.samplers`, numpy/scipy on one core) timed in "
+        "the same run; slow samplers are not run where one set would take more than "
+        f"{a.ref_budget:.0f} s (estimated from the previous size, growth n^1.5).",
+        "",
+        f"Targets (issue 5, n = 1024): <= {TARGET_BATCH_MS:.0f} ms per set batched, "
+        f"<= {TARGET_ALONE_MS:.0f} ms alone; >= 10x faster than gbn and sot at 1024 and 4096; "
+        "n = 65536 in one call with memory < 4 GiB.",
+        "",
+        "| model | default sampling | n | alone | batched (per set) | peak MiB | reference | "
+        "speed-up (batched) | spectrum MAE at 1024 (fidelity.md) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, res in results.items():
+        f = fid.get(name, {}).get("1024")
+        mae = f"{f['mae']:.4f} (floor {f['floor']:.4f})" if f else "not measured"
+        for n, r in res["rows"].items():
+            per = r.get("batch_s_per_set", r["alone_s"])
+            speedup = f"{r['ref_s'] / per:.2g}x" if r.get("ref_s") else ""
+            mark = ""
+            if n == 1024:
+                ok = per * 1000 <= TARGET_BATCH_MS and r["alone_s"] * 1000 <= TARGET_ALONE_MS
+                mark = " ✓" if ok else " ✗"
+            ref = fmt_s(r.get("ref_s")) if r.get("ref_s") else r.get("ref_note", "")
+            lines.append(f"| {name} | {r['solver']} {r['steps']} | {n} | {fmt_s(r['alone_s'])}"
+                         f" | {fmt_s(r.get('batch_s_per_set'))}{mark} | {r['peak_mib']:.0f} | "
+                         f"{ref} | {speedup} | {mae if n == 1024 else ''} |")
+    lines += ["", "![time per set vs n](speed.png)", ""]
+    out = ROOT / "benchmarks" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "speed.md").write_text("\n".join(lines))
+    (out / "speed.json").write_text(json.dumps(
+        {m: {str(n): r for n, r in res["rows"].items()} for m, res in results.items()}, indent=1))
+    plot(results, out / "speed.png")
+    print(f"wrote {out / 'speed.md'}")
+
+
+def _ort_version() -> str:
+    import onnxruntime
+    return onnxruntime.__version__
+
+
+def plot(results: dict, path: Path) -> None:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, (name, res) in enumerate(results.items()):
+        ns = list(res["rows"])
+        c = f"C{i % 10}"
+        ax.loglog(ns, [r.get("batch_s_per_set", r["alone_s"]) for r in res["rows"].values()],
+                  "-o", color=c, ms=3, label=f"{name} (learned, batched)")
+        refs = [(n, r["ref_s"]) for n, r in res["rows"].items() if r.get("ref_s")]
+        if refs:
+            ax.loglog(*zip(*refs), ":x", color=c, ms=4, label=f"{res['sampler']} (reference)")
+    ax.set(xlabel="points per set", ylabel="seconds per set", title="time per set, 2 cores")
+    ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main() -> None:
+    if sys.argv[1:2] == ["--child"]:
+        kind, *rest = sys.argv[2:]
+        if kind == "model":
+            name, n, batch, repeats, threads = rest
+            out = child_model(name, int(n), int(batch), int(repeats), int(threads) or None)
+        else:
+            out = child_reference(rest[0], int(rest[1]))
+        print(json.dumps(out))
+        return
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", nargs="*", help="default: every bundled model")
+    p.add_argument("--sizes", type=int, nargs="*", default=list(SIZES))
+    p.add_argument("--batch", type=int, default=32, help="sets per batched call (n <= 4096)")
+    p.add_argument("--repeats", type=int, default=3, help="single-set runs (median)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
+    p.add_argument("--ref-budget", type=float, default=120.0,
+                   help="skip reference sets estimated to take longer (seconds)")
+    a = p.parse_args()
+    report(measure(a), a)
+
+
+if __name__ == "__main__":
+    main()
