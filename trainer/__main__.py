@@ -1,4 +1,5 @@
-"""Command line: ``python -m trainer train|prepare CONFIG`` and ``python -m trainer sample NAME N``."""
+"""Command line: ``python -m trainer train|prepare CONFIG``, ``python -m trainer sample NAME N``
+and ``python -m trainer optimise CHECKPOINT N`` (property optimisation of the input noise)."""
 from __future__ import annotations
 
 import argparse
@@ -23,6 +24,36 @@ def _save_points(points: np.ndarray, path: Path) -> None:
         raise ValueError(f"unknown output format {suffix!r}; use .npy, .txt or .csv")
 
 
+def _optimise(args: argparse.Namespace) -> None:
+    if not args.checkpoint.exists():
+        raise FileNotFoundError(f"checkpoint {args.checkpoint} not found")
+    import torch
+
+    from .optimise import optimise_noise
+    from .train import load_checkpoint, model_from_checkpoint
+    torch.set_num_threads(args.threads)
+    net, cfg = model_from_checkpoint(load_checkpoint(args.checkpoint))
+    show = sys.stderr.isatty()
+
+    def report(it: int, values) -> None:
+        if show or it % 10 == 0 or it == args.iterations:
+            print(f"iteration {it}: {args.objective} mean {float(values.mean()):.4g}",
+                  file=sys.stderr, flush=True)
+
+    res = optimise_noise(net, schedule=cfg.schedule, offset_scale=cfg.data.offset_scale,
+                         embedding=cfg.data.embedding, n=args.n, count=args.count,
+                         objective=args.objective, steps=args.steps,
+                         iterations=args.iterations, lr=args.lr, step_noise=args.step_noise,
+                         seed=args.seed, callback=report)
+    _save_points(res.points, args.output)
+    if args.log:
+        with open(args.log, "w") as fh:
+            fh.write("iteration,mean," + ",".join(f"set{i}" for i in range(args.count)) + "\n")
+            for row in res.trajectory:
+                fh.write(f"{row['iteration']},{row['mean']!r},"
+                         + ",".join(repr(v) for v in row["per_set"]) + "\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m trainer", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -44,6 +75,20 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--seed", type=int, default=None)
     s.add_argument("-o", "--output", type=Path, required=True, help=".npy, .txt or .csv")
 
+    o = sub.add_parser("optimise", help="optimise a trained net's input noise for a property")
+    o.add_argument("checkpoint", type=Path, help="runs/<name>/checkpoint.pt (EMA weights used)")
+    o.add_argument("n", type=int, help="points per set (a perfect square)")
+    o.add_argument("--count", type=int, default=10)
+    o.add_argument("--objective", default="l2_star", choices=["l2_star", "ot_proxy"])
+    o.add_argument("--steps", type=int, default=50, help="reverse-process steps")
+    o.add_argument("--iterations", type=int, default=100, help="Adam iterations")
+    o.add_argument("--lr", type=float, default=0.05)
+    o.add_argument("--step-noise", action="store_true", help="also optimise per-step noise")
+    o.add_argument("--seed", type=int, default=0)
+    o.add_argument("--threads", type=int, default=2)
+    o.add_argument("-o", "--output", type=Path, required=True, help=".npy, .txt or .csv")
+    o.add_argument("--log", type=Path, help="trajectory as CSV (iteration, mean, per set)")
+
     args = p.parse_args(argv)
     try:
         if args.cmd == "train":
@@ -62,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
             pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty()).pools
             for k, pool in pools.items():
                 print(f"{cfg.name}: k={k} pool {pool.shape}")
+        elif args.cmd == "optimise":
+            _optimise(args)
         else:
             from .samplers import sample
             pts = sample(args.name, args.n, count=args.count, seed=args.seed,
