@@ -127,17 +127,51 @@ class Model:
         """
         k = _validate.num_points(n)
         c = 1 if count is None else _validate.count(count)
+        out = np.empty((c, k * k, 2))
+        start = 0
+        for block in self.iter_sets(n, c, seed=seed, steps=steps, solver=solver,
+                                    progress=progress):
+            out[start:start + len(block)] = block
+            start += len(block)
+        return out[0] if count is None else out
+
+    def iter_sets(self, n: int, count: int, *, batch: int | None = None,
+                  seed: int | np.random.Generator | None = None, steps: int | None = None,
+                  solver: str | None = None, progress: bool = False):
+        """Generate ``count`` sets lazily, ``batch`` sets at a time (a generator).
+
+        For counts too large to hold at once: each yielded block has shape
+        (b, n, 2) with b <= ``batch`` (default: about 32 k points per block), and the
+        blocks concatenated equal ``generate(n, count, seed=seed, ...)``.
+
+        Examples
+        --------
+        >>> import diffsampler_rt
+        >>> m = diffsampler_rt.load("rank1")
+        >>> sum(len(b) for b in m.iter_sets(64, 10, batch=4, seed=0))
+        10
+        """
+        k = _validate.num_points(n)
+        c = _validate.count(count)
         T = len(self.alpha_bar)
         s = self.card["default_steps"] if steps is None else _validate.steps(steps, T)
         solver = self.card["default_solver"] if solver is None else solver
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
+        if batch is None:
+            per_batch = max(1, POINTS_PER_BATCH // (k * k))
+        else:
+            per_batch = _validate.integer("batch", batch)
+            if per_batch < 1:
+                raise ValueError(f"batch must be >= 1, got {per_batch}")
         rng = _validate.rng(seed)
-        ts = timesteps(T, min(s, T))
+        # validated now; the sets are made as the caller iterates
+        return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress)
+
+    def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
+                ts: np.ndarray, solver: str, progress: bool):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
-        per_batch = max(1, POINTS_PER_BATCH // (k * k))
-        out = np.empty((c, k * k, 2))
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
@@ -148,10 +182,8 @@ class Model:
 
             x = solve(solver, self.denoise, x, self.alpha_bar, ts, noise)
             grid = x / float(self.card["offset_scale"])
-            out[start:start + len(sub)] = decode(
-                grid, stratified=self.card["embedding"] == "stratified")
             bar.update(len(sub))
-        return out[0] if count is None else out
+            yield decode(grid, stratified=self.card["embedding"] == "stratified")
 
 
 @lru_cache(maxsize=16)

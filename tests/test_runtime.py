@@ -134,3 +134,14 @@ def test_docstring_examples():
     from diffsampler_rt import model
     assert doctest.testmod(model).failed == 0
     assert doctest.testmod(diffsampler_rt).failed == 0
+
+
+def test_iter_sets_streams_the_same_sets_in_blocks():
+    m = diffsampler_rt.load("rank1")
+    blocks = list(m.iter_sets(64, 7, batch=3, seed=5, steps=4))
+    assert [len(b) for b in blocks] == [3, 3, 1]
+    np.testing.assert_array_equal(np.concatenate(blocks), m.generate(64, 7, seed=5, steps=4))
+    with pytest.raises(ValueError, match="batch must be >= 1, got 0"):
+        m.iter_sets(64, 7, batch=0)  # checked at the call, before iterating
+    with pytest.raises(ValueError, match="count must be >= 1"):
+        m.iter_sets(64, 0)
