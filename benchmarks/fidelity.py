@@ -162,7 +162,10 @@ def evaluate(pool, name: str, a) -> dict:
         for k in STATS:
             ma, mb = stats_a[k].mean(), stats_b[k].mean()
             row[k] = {"gen": float(gstats[k].mean()), "ref": float(ma),
-                      "rel": float(gstats[k].mean() / ma - 1), "floor": float(mb / ma - 1)}
+                      "rel": float(gstats[k].mean() / ma - 1), "floor": float(mb / ma - 1),
+                      # per set, 6 significant digits: for the violin plots
+                      "gen_sets": [float(f"{v:.6g}") for v in gstats[k]],
+                      "ref_sets": [float(f"{v:.6g}") for v in stats_a[k]]}
         if n == 1024 and seed_curve(sampler) is not None:
             row["mae_seed_gen"] = spectrum_mae(sg, seed_curve(sampler))
             row["mae_seed_ref"] = spectrum_mae(sa, seed_curve(sampler))
@@ -332,7 +335,9 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         lines += ["", f"![{r['name']}](fidelity/{r['name']}.png)"]
     lines.append("")
     (out / "fidelity.md").write_text("\n".join(lines))
-    summary = {r["name"]: {str(n): {k: v for k, v in row.items()
+    summary = {r["name"]: {str(n): {k: ({kk: vv for kk, vv in v.items() if not kk.endswith("_sets")}
+                                        if isinstance(v, dict) else v)
+                                    for k, v in row.items()
                                     if not k.startswith(("spec_", "example_"))}
                            for n, row in r["rows"].items()} for r in results}
     (out / "fidelity.json").write_text(json.dumps(_jsonable(summary), indent=1))
