@@ -23,9 +23,9 @@ STATS = {"ot_energy": "OT energy", "l2_star": "star L2", "gauss_mse": "Gaussian 
          "heaviside_mse": "Heaviside MSE", "min_distance": "min distance"}
 
 
-def load(models: list[str] | None) -> dict[str, dict]:
+def load(models: list[str] | None, results: Path = RESULTS) -> dict[str, dict]:
     out = {}
-    for path in sorted((RESULTS / "fidelity").glob("*.json")):
+    for path in sorted((results / "fidelity").glob("*.json")):
         if models and path.stem not in models:
             continue
         r = json.loads(path.read_text())
@@ -37,12 +37,14 @@ def load(models: list[str] | None) -> dict[str, dict]:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", nargs="*")
-    p.add_argument("--out", type=Path, default=RESULTS / "violins.png")
+    p.add_argument("--results", type=Path, default=RESULTS, help="fidelity.py's --out")
+    p.add_argument("--out", type=Path, default=None, help="default: RESULTS/violins.png")
     a = p.parse_args()
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    results = load(a.models)
+    results = load(a.models, a.results)
+    a.out = a.out or a.results / "violins.png"
     if not results:
         raise SystemExit("no kept fidelity results with per-set statistics; run "
                          "benchmarks/fidelity.py first")

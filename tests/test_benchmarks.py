@@ -16,3 +16,13 @@ def test_fidelity_report_runs(tmp_path):
     md = (tmp_path / "out" / "fidelity.md").read_text()
     assert "| 64 | 3 |" in md and "empty el. intervals" in md
     assert (tmp_path / "out" / "fidelity.json").exists()
+    # the kept per-model result feeds the report again and the violin plots
+    res = subprocess.run([sys.executable, "benchmarks/fidelity.py", "--report-only",
+                          "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert "| 64 | 3 |" in (tmp_path / "out" / "fidelity.md").read_text()
+    res = subprocess.run([sys.executable, "benchmarks/violins.py", "--results",
+                          str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "out" / "violins.png").stat().st_size > 1000
