@@ -48,7 +48,7 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "trained_sides": list(cfg.data.sizes),
         "min_side": MIN_SIDE,
         "default_steps": cfg.default_sample_steps,
-        "default_solver": "ddim",
+        "default_solver": cfg.default_solver,
         "weights": weights,
         "inputs": {"x": "float32 (batch, 2, k, k) noisy scaled offsets",
                    "t": "float32 (batch,) timestep index in [0, T)"},

@@ -25,7 +25,8 @@ def tiny_config(name: str = "tiny", sampler: str = "sobol_owen", embedding: str 
         data=DataConfig(sampler=sampler, embedding=embedding, sizes=(4, 8), batch_sizes=(4, 2),
                         pool_sizes=(0, 0)),
         unet=UNetConfig(**{**TINY_UNET, **unet}), steps=6, warmup_steps=2,
-        checkpoint_every_s=1e9, log_every=1, default_sample_steps=5)
+        checkpoint_every_s=1e9, log_every=1, default_sample_steps=5,
+        default_solver="ddim")
 
 
 @pytest.fixture(scope="session")

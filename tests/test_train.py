@@ -63,6 +63,16 @@ def test_unknown_config_key():
                                "stepz": 3})
 
 
+def test_sampling_defaults_validated():
+    base = {"name": "x", "data": {"sampler": "rank1", "embedding": "ot"}}
+    cfg = TrainConfig.from_dict(base)
+    assert (cfg.default_solver, cfg.default_sample_steps) == ("dpmpp_2m", 20)
+    with pytest.raises(ValueError, match="default_solver 'rk4'"):
+        TrainConfig.from_dict({**base, "default_solver": "rk4"})
+    with pytest.raises(ValueError, match="default_sample_steps must be >= 1, got 0"):
+        TrainConfig.from_dict({**base, "default_sample_steps": 0})
+
+
 def test_bundled_recipes_load():
     from pathlib import Path
     for path in Path("trainer/configs").glob("*.json"):
