@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import IO
@@ -135,6 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         args.func(args)
+    except BrokenPipeError:
+        # the reader closed the pipe (`diffsampler generate ... | head`): not an error;
+        # point stdout at devnull so the interpreter's final flush does not complain
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (ValueError, TypeError, OSError, ImportError) as exc:  # DiffsamplerError: ValueError/OSError
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"diffsampler: error: {msg}", file=sys.stderr)

@@ -61,3 +61,14 @@ def test_bad_input_exits_2_with_one_line(args, match):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1, res.stderr
     assert __import__("re").search(match, lines[0]), lines[0]
+
+
+def test_closed_pipe_is_not_an_error():
+    """`diffsampler generate ... | head -1`: the reader leaves early; exit 0, nothing on stderr."""
+    proc = subprocess.Popen([sys.executable, "-m", "diffsampler_rt", "generate", "rank1", "4096",
+                             "--count", "8", "--seed", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().strip()
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0 and err == b""
