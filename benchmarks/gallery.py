@@ -5,7 +5,9 @@ mean 2-d power spectrum, and both radial spectra (n = 1024 by default, spectra o
 --sets sets). Reference sets come from the fidelity benchmark's cache when present
 (~/.cache/diffsampler/reference), else they are drawn here. Non-uniform models are shown
 as generated (warped); their spectra are taken after the exact unwarping map.
-Writes benchmarks/results/gallery.png.
+Writes benchmarks/results/gallery.png, then redraws benchmarks/results/violins.png from the
+per-set statistics kept by benchmarks/fidelity.py (benchmarks/violins.py alone does only
+that), so one command makes both figures the README shows.
 
     python benchmarks/gallery.py [--n 1024] [--sets 32] [--models gbn sot]
 """
@@ -81,6 +83,10 @@ def main() -> None:
     a.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(a.out, dpi=70)
     print(f"wrote {a.out}")
+    from benchmarks import violins
+    kept = violins.load(a.models, violins.RESULTS)
+    if kept:
+        violins.draw(kept, a.out.parent / "violins.png")
 
 
 if __name__ == "__main__":

@@ -34,37 +34,37 @@ def load(models: list[str] | None, results: Path = RESULTS) -> dict[str, dict]:
     return out
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--models", nargs="*")
-    p.add_argument("--results", type=Path, default=RESULTS, help="fidelity.py's --out")
-    p.add_argument("--out", type=Path, default=None, help="default: RESULTS/violins.png")
-    a = p.parse_args()
+def draw(results: dict[str, dict], out: Path) -> None:
+    """One row of violin panels per model (see the module docstring) -> ``out``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    results = load(a.models, a.results)
-    a.out = a.out or a.results / "violins.png"
-    if not results:
-        raise SystemExit("no kept fidelity results with per-set statistics; run "
-                         "benchmarks/fidelity.py first")
     fig, axes = plt.subplots(len(results), len(STATS), squeeze=False,
                              figsize=(3.3 * len(STATS), 2.3 * len(results)))
     for i, (name, r) in enumerate(results.items()):
         sizes = sorted(int(n) for n in r["rows"])
         for j, (key, label) in enumerate(STATS.items()):
             ax = axes[i, j]
+            lo, hi = np.inf, 0.0
             for s_i, n in enumerate(sizes):
                 st = r["rows"][str(n)][key]
                 ref, gen = np.asarray(st["ref_sets"]), np.asarray(st["gen_sets"])
                 scale = ref.mean()
                 for side, (vals, colour) in enumerate(((ref, "C0"), (gen, "C1"))):
-                    parts = ax.violinplot(vals / scale, positions=[s_i + (side - 0.5) * 0.38],
-                                          widths=0.36, showmeans=True, showextrema=False)
+                    at = s_i + (side - 0.5) * 0.38
+                    v = vals / scale
+                    lo, hi = min(lo, v.min()), max(hi, v.max())
+                    if len(v) < 2 or np.ptp(v) == 0:  # no density to draw: a mark
+                        ax.plot([at] * len(v), v, "_", color=colour, ms=10, mew=2)
+                        continue
+                    parts = ax.violinplot(v, positions=[at], widths=0.36, showmeans=True,
+                                          showextrema=False)
                     for b in parts["bodies"]:
                         b.set_facecolor(colour)
                         b.set_alpha(0.6)
                     parts["cmeans"].set_color(colour)
+            if lo > 0 and hi / lo > 30:  # a model far off at some n: a log axis keeps the rest legible
+                ax.set_yscale("log")
             ax.axhline(1.0, lw=0.6, c="k", alpha=0.4)
             ax.set_xticks(range(len(sizes)), [str(n) for n in sizes], fontsize=7)
             ax.tick_params(axis="y", labelsize=7)
@@ -78,8 +78,22 @@ def main() -> None:
                                plt.Rectangle((0, 0), 1, 1, color="C1", alpha=0.6)],
                       labels=["reference", "learned"], fontsize=7, loc="upper right")
     fig.tight_layout()
-    fig.savefig(a.out, dpi=70)
-    print(f"wrote {a.out}")
+    fig.savefig(out, dpi=70)
+    plt.close(fig)
+    print(f"wrote {out}")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", nargs="*")
+    p.add_argument("--results", type=Path, default=RESULTS, help="fidelity.py's --out")
+    p.add_argument("--out", type=Path, default=None, help="default: RESULTS/violins.png")
+    a = p.parse_args()
+    results = load(a.models, a.results)
+    if not results:
+        raise SystemExit("no kept fidelity results with per-set statistics; run "
+                         "benchmarks/fidelity.py first")
+    draw(results, a.out or a.results / "violins.png")
 
 
 if __name__ == "__main__":
