@@ -154,6 +154,9 @@ def report(results: dict, a) -> None:
         "the same run; slow samplers are not run where one set would take more than "
         f"{a.ref_budget:.0f} s (estimated from the previous size, growth n^1.5).",
         "",
+        "Sizes measured: " + "; ".join(
+            f"{', '.join(ms)}: n = {', '.join(map(str, sz))}" for sz, ms in _by_sizes(results)) + ".",
+        "",
         f"Targets (issue 5, n = 1024): <= {TARGET_BATCH_MS:.0f} ms per set batched, "
         f"<= {TARGET_ALONE_MS:.0f} ms alone; >= 10x faster than gbn and sot at 1024 and 4096; "
         "n = 65536 in one call with memory < 4 GiB.",
@@ -181,9 +184,18 @@ def report(results: dict, a) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "speed.md").write_text("\n".join(lines))
     (out / "speed.json").write_text(json.dumps(
-        {m: {str(n): r for n, r in res["rows"].items()} for m, res in results.items()}, indent=1))
+        {m: {"sampler": res["sampler"], "rows": {str(n): r for n, r in res["rows"].items()}}
+         for m, res in results.items()}, indent=1))
     plot(results, out / "speed.png")
     print(f"wrote {out / 'speed.md'}")
+
+
+def _by_sizes(results: dict) -> list[tuple[tuple[int, ...], list[str]]]:
+    """Models grouped by the sizes they were measured at (runs may cover different sizes)."""
+    groups: dict[tuple[int, ...], list[str]] = {}
+    for name, res in results.items():
+        groups.setdefault(tuple(sorted(int(n) for n in res["rows"])), []).append(name)
+    return sorted(groups.items(), key=lambda g: -len(g[0]))
 
 
 def _ort_version() -> str:
@@ -230,10 +242,23 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=32, help="sets per batched call (n <= 4096)")
     p.add_argument("--repeats", type=int, default=3, help="single-set runs (median)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
+    p.add_argument("--fresh", action="store_true",
+                   help="drop the kept measurements of models not measured in this run")
     p.add_argument("--ref-budget", type=float, default=120.0,
                    help="skip reference sets estimated to take longer (seconds)")
+    p.add_argument("--report-only", action="store_true",
+                   help="rebuild speed.md / speed.png from the kept speed.json")
     a = p.parse_args()
-    report(measure(a), a)
+    results = {} if a.report_only else measure(a)
+    # keep other models' earlier measurements (speed.json), so models or sizes can be
+    # measured in separate runs; the report covers every model measured so far
+    kept = ROOT / "benchmarks" / "results" / "speed.json"
+    if kept.exists() and not a.fresh:
+        old = json.loads(kept.read_text())
+        merged = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()}}
+                  for m, r in old.items() if m not in results}
+        results = {**merged, **results}
+    report(dict(sorted(results.items())), a)
 
 
 if __name__ == "__main__":
