@@ -33,13 +33,12 @@ def reference_sets(sampler: str, n: int, count: int) -> np.ndarray:
     """Up to ``count`` reference sets: the smallest cached batch (seed 1) holding ``count``,
     else the largest cached one (slow samplers: fewer sets, the figure says how many), else
     ``count`` fresh ones."""
-    cached = []
-    for path in (cache_dir() / "reference").glob(f"{sampler}_n{n}_c*_s1.npz"):
-        cached.append((int(path.name.split("_c")[-1].split("_")[0]), path))
-    enough = [c for c in cached if c[0] >= count]
-    if enough or cached:
-        return np.load(min(enough)[1] if enough else max(cached)[1])["pts"][:count]
-    return sample(sampler, n, count=count, seed=[1, n])
+    cached = sorted((int(path.name.split("_c")[-1].split("_")[0]), path)
+                    for path in (cache_dir() / "reference").glob(f"{sampler}_n{n}_c*_s1.npz"))
+    if not cached:
+        return sample(sampler, n, count=count, seed=[1, n])
+    enough = [path for c, path in cached if c >= count]
+    return np.load(enough[0] if enough else cached[-1][1])["pts"][:count]
 
 
 def main() -> None:
