@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -112,7 +113,9 @@ class Model:
         seed : int or numpy.random.Generator, optional
             The same seed gives the same sets.
         steps : int, optional
-            Denoiser evaluations (default: the model card's ``default_steps``).
+            Denoiser evaluations (default: the model card's ``default_steps``). A distilled
+            model (its card has a ``distillation`` record) learned only its default solver
+            and steps; other settings warn.
         solver : {"ddim", "ddpm", "dpmpp_2m"}, optional
             Deterministic DDIM, ancestral DDPM on the same step grid, or the deterministic
             second-order multistep DPM-Solver++(2M) (one evaluation per step too).
@@ -158,6 +161,11 @@ class Model:
         solver = self.card["default_solver"] if solver is None else solver
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
+        distilled = self.card.get("distillation")
+        if distilled and (s, solver) != (self.card["default_steps"], self.card["default_solver"]):
+            warnings.warn(f"model {self.name!r} was distilled for {self.card['default_solver']} "
+                          f"with {self.card['default_steps']} steps; {solver} with {s} steps "
+                          "is outside what it learned and gives poorer sets", stacklevel=3)
         if batch is None:
             per_batch = max(1, POINTS_PER_BATCH // (k * k))
         else:

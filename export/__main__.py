@@ -2,6 +2,9 @@
 
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]``: change the sampling
 defaults in an exported model's card.
+
+``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
+with windowed (W cells per side) or, with W = 0, global self-attention.
 """
 from __future__ import annotations
 
@@ -32,10 +35,45 @@ def set_defaults_main(argv: list[str]) -> int:
     return 0
 
 
+def reexport_main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m export reexport",
+                                description="re-export a model with another attention window")
+    p.add_argument("model", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("--attention-window", type=int, required=True,
+                   help="cells per window side; 0 for global attention")
+    args = p.parse_args(argv)
+    if not args.model.exists():
+        print(f"error: model {args.model} not found", file=sys.stderr)
+        return 2
+    if args.attention_window < 0:
+        print(f"error: --attention-window must be >= 0, got {args.attention_window}",
+              file=sys.stderr)
+        return 2
+    import torch
+    torch.set_num_threads(2)
+    from . import ParityError
+    from .reexport import reexport
+    try:
+        out, diffs = reexport(args.model, args.output,
+                              attention_window=args.attention_window or None)
+    except ParityError as exc:
+        print(f"parity check FAILED: {exc}", file=sys.stderr)
+        return 1
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {out} ({out.stat().st_size / 2**20:.2f} MiB); parity max|diff| "
+          + ", ".join(f"k={k}: {d:.2g}" for k, d in diffs.items()))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["set-defaults"]:
         return set_defaults_main(argv[1:])
+    if argv[:1] == ["reexport"]:
+        return reexport_main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m export", description=__doc__)
     p.add_argument("checkpoint", type=Path, help="runs/<name>/checkpoint.pt")
     p.add_argument("-o", "--output", type=Path, required=True)

@@ -148,8 +148,12 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
     net, cfg = model_from_checkpoint(state, ema=True)
     if fp16_weights:
         round_to_fp16(net)
-    card = model_card(cfg, training_steps=state["step"], train_seconds=state.get("elapsed_s"),
-                      parameters=sum(p.numel() for p in net.parameters()))
+    # distilled students (trainer.distil) carry their teacher's training figures and a
+    # ``distillation`` record for the card
+    card = model_card(cfg, training_steps=state.get("training_steps", state["step"]),
+                      train_seconds=state.get("train_seconds", state.get("elapsed_s")),
+                      parameters=sum(p.numel() for p in net.parameters()),
+                      extra=state.get("card_extra"))
     out = export_model(net, card, path, fp16_weights=fp16_weights)
     diffs = check_parity(net, out, sides=parity_sides, tolerance=tolerance) if parity_sides else {}
     return out, diffs

@@ -117,3 +117,26 @@ def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
     res = subprocess.run([sys.executable, "-m", "export", "set-defaults", str(path),
                           "--steps", "0"], capture_output=True, text=True)
     assert res.returncode == 2 and "steps must be a positive integer, got 0" in res.stderr
+
+
+def test_reexport_with_attention_window(tiny_onnx, tmp_path):
+    from export.reexport import reexport
+    out, diffs = reexport(tiny_onnx, tmp_path / "w.onnx", attention_window=2,
+                          parity_sides=(4, 9, 16))
+    assert max(diffs.values()) < 1e-4
+    before, after = diffsampler_rt.Model(tiny_onnx), diffsampler_rt.Model(out)
+    assert after.card["config"]["unet"]["attention_window"] == 2
+    assert "attention windows of 2 cells" in after.card["provenance"]
+    assert after.card["default_steps"] == before.card["default_steps"]
+    x = np.random.default_rng(0).standard_normal((2, 2, 4, 4))
+    # a 4 x 4 grid's attention level is 2 x 2: one window, the very same function
+    np.testing.assert_allclose(after.denoise(x, 10), before.denoise(x, 10), atol=1e-6)
+    x = np.random.default_rng(0).standard_normal((2, 2, 16, 16))
+    assert np.abs(after.denoise(x, 10) - before.denoise(x, 10)).max() > 1e-4
+
+
+def test_reexport_cli_rejects_bad_window(tiny_onnx, tmp_path, capsys):
+    from export.__main__ import main
+    assert main(["reexport", str(tiny_onnx), "-o", str(tmp_path / "x.onnx"),
+                 "--attention-window", "-1"]) == 2
+    assert "attention-window" in capsys.readouterr().err

@@ -68,3 +68,45 @@ def test_axial_levels_are_a_setting():
     assert net(torch.randn(2, 2, 9, 9), torch.tensor([1.0, 500.0])).shape == (2, 2, 9, 9)
     with pytest.raises(ValueError, match="axial_levels"):
         UNetConfig(axial_levels=(3,))
+
+
+def _active_attention(window):
+    from trainer.unet import Attention
+    torch.manual_seed(0)
+    layer = Attention(8, heads=2, groups=2, window=window).eval()
+    with torch.no_grad():  # the projection starts at zero (identity layer): make it act
+        layer.proj.weight.normal_()
+    return layer
+
+
+@pytest.mark.parametrize("h", [3, 6])
+def test_windowed_attention_is_global_when_the_grid_fits_one_window(h):
+    glob, win = _active_attention(None), _active_attention(6)
+    x = torch.randn(2, 8, h, h)
+    with torch.no_grad():
+        assert torch.equal(glob(x), win(x))
+
+
+@pytest.mark.parametrize("h,m,s", [(7, 2, 4), (12, 2, 6), (13, 3, 5)])
+def test_windowed_attention_attends_within_near_equal_windows(h, m, s):
+    layer = _active_attention(6)
+    x = torch.randn(1, 8, h, h)
+    with torch.no_grad():
+        got = layer(x)
+        qkv = layer.qkv(layer.norm(x))  # the norm is over the whole grid
+        ref = torch.zeros_like(x)
+        for i in range(m):  # each window on its own, cut from the grid (last ones shorter)
+            for j in range(m):
+                cut = (slice(None), slice(None), slice(i * s, (i + 1) * s),
+                       slice(j * s, (j + 1) * s))
+                part = qkv[cut]
+                b, c3, hh, ww = part.shape
+                ref[cut] = layer._attend(part.reshape(b, c3, hh * ww), 8, None).reshape(
+                    b, 8, hh, ww)
+        ref = x + layer.proj(ref)
+    assert torch.allclose(got, ref, atol=1e-5)
+
+
+def test_attention_window_validated():
+    with pytest.raises(ValueError, match="attention_window"):
+        UNetConfig(attention_window=0)

@@ -1,4 +1,4 @@
-"""Command line: ``python -m trainer train|prepare CONFIG``, ``python -m trainer sample NAME N``
+"""Command line: ``python -m trainer train|prepare|distil CONFIG``, ``python -m trainer sample NAME N``
 and ``python -m trainer optimise CHECKPOINT N`` (property optimisation of the input noise)."""
 from __future__ import annotations
 
@@ -65,6 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--minutes", type=float, help="stop after this much wall time")
     t.add_argument("--no-progress", action="store_true")
 
+    d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
+    d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
+    d.add_argument("--run-dir", type=Path, help="default: runs/<student name>")
+    d.add_argument("--steps", type=int, help="stop at this step (default: the config's)")
+    d.add_argument("--minutes", type=float, help="stop after this much wall time")
+    d.add_argument("--no-progress", action="store_true")
+
     r = sub.add_parser("prepare", help="build (and cache) a config's training pools")
     r.add_argument("config", type=Path)
 
@@ -100,6 +107,14 @@ def main(argv: list[str] | None = None) -> int:
             path = tr.run(until_step=args.steps,
                           max_seconds=None if args.minutes is None else 60 * args.minutes)
             print(f"step {tr.step}: checkpoint {path}")
+        elif args.cmd == "distil":
+            from .distil import DistilConfig, Distiller
+            dcfg = DistilConfig.load(args.config)
+            dist = Distiller(dcfg, args.run_dir or Path("runs") / dcfg.name,
+                             progress=not args.no_progress)
+            path = dist.run(until_step=args.steps,
+                            max_seconds=None if args.minutes is None else 60 * args.minutes)
+            print(f"step {dist.step}: checkpoint {path}")
         elif args.cmd == "prepare":
             from .config import TrainConfig
             from .data import Batches

@@ -34,6 +34,11 @@ class UNetConfig:
     #: whole rows and columns of cells (every 1/n strip holds one point).
     axial_levels: tuple[int, ...] = ()
     num_heads: int = 4
+    #: self-attention (not axial) attends within windows of at most this many cells per
+    #: side: a grid side h <= window is one window (plain global attention), a larger one
+    #: is cut into ceil(h / window) near-equal windows per side. Keeps attention linear in
+    #: n on big grids, and every window the size the net saw in training. None: global.
+    attention_window: int | None = None
     padding: str = "zeros"
     #: extra input channels: bits 0..coord_bits-1 of each cell's column and row index,
     #: as +-1, telling the net where a cell sits in the dyadic hierarchy (net structure).
@@ -49,6 +54,8 @@ class UNetConfig:
                 raise ValueError(f"{name} {levels} outside 0..{len(self.channel_mult) - 1}")
             object.__setattr__(self, name, levels)
         object.__setattr__(self, "channel_mult", tuple(self.channel_mult))
+        if self.attention_window is not None and self.attention_window < 1:
+            raise ValueError(f"attention_window must be >= 1 or None, got {self.attention_window}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -87,24 +94,51 @@ class ResBlock(nn.Module):
 
 
 class Attention(nn.Module):
-    """Multi-head self-attention over all cells of the grid."""
+    """Multi-head self-attention over all cells of the grid, or within windows of it."""
 
-    def __init__(self, ch: int, heads: int, groups: int):
+    def __init__(self, ch: int, heads: int, groups: int, window: int | None = None):
         super().__init__()
         self.heads = heads
+        self.window = window
         self.norm = nn.GroupNorm(groups, ch)
         self.qkv = nn.Conv2d(ch, 3 * ch, 1)
         self.proj = nn.Conv2d(ch, ch, 1)
         nn.init.zeros_(self.proj.weight)
         nn.init.zeros_(self.proj.bias)
 
+    def _attend(self, qkv: torch.Tensor, c: int, bias: torch.Tensor | None) -> torch.Tensor:
+        b = qkv.shape[0]  # qkv: (b, 3c, tokens) -> (b, c, tokens)
+        qkv = qkv.reshape(b, 3, self.heads, c // self.heads, -1)
+        q, k, v = qkv[:, 0], qkv[:, 1], qkv[:, 2]  # (b, heads, d, tokens)
+        scale = (c // self.heads) ** -0.5
+        logits = torch.einsum("bndi,bndj->bnij", q * scale, k)
+        if bias is not None:
+            logits = logits + bias
+        attn = torch.softmax(logits, dim=-1)
+        return torch.einsum("bnij,bndj->bndi", attn, v).reshape(b, c, -1)
+
     def forward(self, x: torch.Tensor, emb: torch.Tensor | None = None) -> torch.Tensor:
         b, c, h, w = x.shape
-        qkv = self.qkv(self.norm(x)).reshape(b, 3, self.heads, c // self.heads, h * w)
-        q, k, v = qkv[:, 0], qkv[:, 1], qkv[:, 2]  # (b, heads, d, hw)
-        scale = (c // self.heads) ** -0.5
-        attn = torch.softmax(torch.einsum("bndi,bndj->bnij", q * scale, k), dim=-1)
-        out = torch.einsum("bnij,bndj->bndi", attn, v).reshape(b, c, h, w)
+        qkv = self.qkv(self.norm(x))
+        if self.window is None:
+            out = self._attend(qkv.reshape(b, 3 * c, h * w), c, None)
+            return x + self.proj(out.reshape(b, c, h, w))
+        # m x m windows of side s (grids are square): m = 1 is exactly global attention
+        m = (h + self.window - 1) // self.window
+        s = (h + m - 1) // m
+        pad = m * s - h
+        qkv = F.pad(qkv, (0, pad, 0, pad))
+        win = (qkv.reshape(b, 3 * c, m, s, m, s).permute(0, 2, 4, 1, 3, 5)
+               .reshape(b * m * m, 3 * c, s * s))
+        # padded cells may not be attended to
+        idx = torch.arange(m * s, device=x.device)
+        valid = (idx < h).reshape(m, s)
+        keys = (valid[:, None, :, None] & valid[None, :, None, :]).reshape(m * m, s * s)
+        bias = torch.where(keys, 0.0, -1e9).to(x.dtype)
+        bias = bias[None].expand(b, -1, -1).reshape(b * m * m, 1, 1, s * s)
+        out = self._attend(win, c, bias)
+        out = (out.reshape(b, m, m, c, s, s).permute(0, 3, 1, 4, 2, 5)
+               .reshape(b, c, m * s, m * s))[:, :, :h, :w]
         return x + self.proj(out)
 
 
@@ -155,7 +189,7 @@ class UNet(nn.Module):
                 layers = [ResBlock(cur, ch * mult, **blk)]
                 cur = ch * mult
                 if level in cfg.attention_levels:
-                    layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                    layers.append(Attention(cur, cfg.num_heads, cfg.groups, cfg.attention_window))
                 if level in cfg.axial_levels:
                     layers.append(AxialAttention(cur, cfg.num_heads, cfg.groups))
                 self.down.append(nn.ModuleList(layers))
@@ -165,7 +199,7 @@ class UNet(nn.Module):
                 skips.append(cur)
 
         self.middle = nn.ModuleList([ResBlock(cur, cur, **blk)]
-                                    + ([Attention(cur, cfg.num_heads, cfg.groups)]
+                                    + ([Attention(cur, cfg.num_heads, cfg.groups, cfg.attention_window)]
                                        if cfg.middle_attention else [])
                                     + [ResBlock(cur, cur, **blk)])
 
@@ -175,7 +209,7 @@ class UNet(nn.Module):
                 layers = [ResBlock(cur + skips.pop(), ch * mult, **blk)]
                 cur = ch * mult
                 if level in cfg.attention_levels:
-                    layers.append(Attention(cur, cfg.num_heads, cfg.groups))
+                    layers.append(Attention(cur, cfg.num_heads, cfg.groups, cfg.attention_window))
                 if level in cfg.axial_levels:
                     layers.append(AxialAttention(cur, cfg.num_heads, cfg.groups))
                 if level > 0 and i == cfg.num_res_blocks:

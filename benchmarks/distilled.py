@@ -1,0 +1,89 @@
+"""Distilled few-step students vs their teachers, side by side with the reference sampler.
+
+For every bundled model whose card has a ``distillation`` record (or the --models given),
+and each n in --sizes, four rows against the same cached reference batch as
+benchmarks/fidelity.py: the teacher at its own default, the teacher cut to the student's
+number of steps (DDIM and DPM-Solver++(2M)), and the student at its default. Columns as in
+benchmarks/solver_sweep.py (spectrum MAE with the floor between two reference batches,
+relative differences of mean OT energy, L2*, integration MSEs and minimum distance; time per
+set of a batched call). Writes benchmarks/results/distilled.md.
+
+    python benchmarks/distilled.py [--models gbn_fast] [--sizes 256 576 1024] [--sets 64]
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import diffsampler_rt  # noqa: E402
+from benchmarks.fidelity import TOL_MEAN, TOL_MIND  # noqa: E402
+from benchmarks.solver_sweep import compare, table  # noqa: E402
+
+
+def students() -> list[str]:
+    return [m for m in diffsampler_rt.list_models()
+            if diffsampler_rt.load(m).card.get("distillation")]
+
+
+def runs_for(student: str) -> list[tuple[str, str, str, int]]:
+    card = diffsampler_rt.load(student).card
+    teacher = card["distillation"]["teacher"]
+    tcard = diffsampler_rt.load(teacher).card
+    solver, steps = card["default_solver"], card["default_steps"]
+    return [(f"{teacher}, {tcard['default_solver']} {tcard['default_steps']} (teacher default)",
+             teacher, tcard["default_solver"], tcard["default_steps"]),
+            (f"{teacher}, ddim {steps}", teacher, "ddim", steps),
+            (f"{teacher}, dpmpp_2m {steps}", teacher, "dpmpp_2m", steps),
+            (f"**{student}, {solver} {steps} (distilled)**", student, solver, steps)]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", nargs="*", help="students (default: every distilled bundled model)")
+    p.add_argument("--sizes", type=int, nargs="*", default=[256, 576, 1024])
+    p.add_argument("--sets", type=int, default=64, help="sets per row (and reference batch)")
+    p.add_argument("--ref-sets", type=int, nargs=3, metavar=("FAST", "SLOW", "SLOW_4096"),
+                   default=[128, 64, 16],
+                   help="reference sets per batch as in fidelity.py (--sets, --slow-sets, "
+                        "--slow-4096; slow samplers use FAST at n = 1024): its cache is reused")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "distilled.md")
+    a = p.parse_args()
+    models = a.models or students()
+    refs = argparse.Namespace(sets=a.ref_sets[0], slow_sets=a.ref_sets[1],
+                              slow_4096=a.ref_sets[2], spectrum_sets=1024)
+    lines = ["# Distilled students vs their teachers", "",
+             f"`python benchmarks/distilled.py --sets {a.sets}` on {dt.date.today().isoformat()} "
+             f"({os.cpu_count()} cores; ms/set is one batched call here, indicative only: "
+             "benchmarks/results/speed.md has the clean timings). Every row: generated vs "
+             "reference batch A (the sets of benchmarks/fidelity.py); the first row is an "
+             "independent reference batch B (the noise floor). Relative differences of the "
+             f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} %). "
+             "Trained sides: 8, 16, 32 (n = 64, 256, 1024); 576 is unseen.", ""]
+    with ProcessPoolExecutor(a.workers) as pool:
+        for name in models:
+            card = diffsampler_rt.load(name).card
+            d = card["distillation"]
+            lines += [f"## {name}", "",
+                      f"Distilled from `{d['teacher']}` ({d['config']['teacher_solver']} "
+                      f"{d['config']['teacher_steps']} steps as teacher) to "
+                      f"{card['default_solver']} {card['default_steps']} steps: {d['steps']} "
+                      f"optimiser steps, {d['seconds'] / 60:.0f} min on CPU.", ""]
+            for n in a.sizes:
+                rows = compare(pool, card["sampler"], n, runs_for(name), a, refs)
+                lines += [f"### n = {n} ({rows[0]['count']} sets a side)", ""] + table(rows) + [""]
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text("\n".join(lines))
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()

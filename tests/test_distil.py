@@ -1,0 +1,135 @@
+"""Warm start from ONNX and few-step distillation (trainer.warm_start, trainer.distil)."""
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnx")
+
+import diffsampler_rt  # noqa: E402
+from diffsampler_rt.schedule import alphas_cumprod, timesteps  # noqa: E402
+from diffsampler_rt.solvers import ddim, solve  # noqa: E402
+from trainer.distil import (DistilConfig, Distiller, hop_loss, hop_times,  # noqa: E402
+                            teacher_trajectories)
+from trainer.warm_start import net_from_onnx  # noqa: E402
+
+from .conftest import TINY_ONNX_UNET, tiny_config  # noqa: E402
+
+
+def test_net_from_onnx_recovers_every_weight(tiny_onnx):
+    # the fixture keeps the exported net's state dict next to the file
+    ref = torch.load(tiny_onnx.with_suffix(".state"))
+    net, cfg, card = net_from_onnx(tiny_onnx)
+    assert cfg.unet == tiny_config(**TINY_ONNX_UNET).unet
+    assert card["name"] == "tiny"
+    got = net.state_dict()
+    assert set(got) == set(ref)
+    for name, value in ref.items():  # GroupNorm weights included (folded by the exporter)
+        assert torch.equal(got[name], value), name
+    m = diffsampler_rt.Model(tiny_onnx)
+    x = np.random.default_rng(0).standard_normal((2, 2, 9, 9))
+    with torch.no_grad():
+        eps = net(torch.tensor(x, dtype=torch.float32), torch.full((2,), 30.0)).numpy()
+    np.testing.assert_allclose(eps, m.denoise(x, 30), atol=1e-5)
+
+
+class _Oracle(torch.nn.Module):
+    """A 'net' that returns a fixed eps, whatever its input."""
+
+    def __init__(self, eps):
+        super().__init__()
+        self.eps = eps
+
+    def forward(self, x, t):
+        return self.eps
+
+
+@pytest.mark.parametrize("weighting", ["snr", "truncated_snr"])
+@pytest.mark.parametrize("last", [False, True])
+def test_hop_loss_is_zero_exactly_when_ddim_lands_on_the_target(last, weighting):
+    ab = alphas_cumprod({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02,
+                         "num_steps": 1000})
+    rng = np.random.default_rng(3)
+    x_t = rng.standard_normal((3, 2, 5, 5))
+    eps = rng.standard_normal((3, 2, 5, 5))
+    t, t_next = 874, (-1 if last else 749)
+    # DDIM's own hop from t to t_next with this eps (ts ending at t: the step goes to clean)
+    x_next = ddim(lambda x, s: eps, x_t, ab, [t] if last else [t, t_next])
+    if not last:  # ddim ran on to clean data; redo only the first hop
+        x0 = (x_t - np.sqrt(1 - ab[t]) * eps) / np.sqrt(ab[t])
+        x_next = np.sqrt(ab[t_next]) * x0 + np.sqrt(1 - ab[t_next]) * eps
+    f = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
+    args = (f(x_t), f(x_next), torch.full((3,), t), torch.full((3,), t_next),
+            torch.tensor(ab, dtype=torch.float32))
+    assert hop_loss(_Oracle(f(eps)), *args, weighting).item() < 1e-6
+    assert hop_loss(_Oracle(f(eps) + 0.1), *args, weighting).item() > 1e-3
+    if weighting == "snr":  # = the squared error of the implied noise
+        assert hop_loss(_Oracle(f(eps) + 0.1), *args, weighting).item() == pytest.approx(0.01)
+
+
+def test_hop_times_end_in_clean_data():
+    assert list(hop_times(1000, 4)) == [999, 749, 499, 249, -1]
+
+
+def test_teacher_trajectory_rows_are_the_solver_states(tiny_onnx):
+    m = diffsampler_rt.Model(tiny_onnx)
+    T = len(m.alpha_bar)
+    tr = teacher_trajectories(m, 6, 5, teacher_steps=4, student_steps=2, solver="ddim",
+                              seed=7, batch=3)
+    assert tr.shape == (3, 5, 2, 6, 6) and tr.dtype == np.float32
+    x = np.random.default_rng([7, 6]).standard_normal((3, 2, 6, 6))  # first batch
+    np.testing.assert_allclose(tr[0, :3], x, atol=1e-6)
+    ts = timesteps(T, 4)
+    states = []  # the states the solver visits, one per teacher step
+    solve("ddim", lambda y, t: (states.append(y.copy()), m.denoise(y, t))[1], x,
+          m.alpha_bar, ts)
+    np.testing.assert_allclose(tr[1, :3], states[2], atol=1e-5)
+    np.testing.assert_allclose(tr[2, :3], solve("ddim", m.denoise, x, m.alpha_bar, ts),
+                               atol=1e-5)
+    with pytest.raises(ValueError, match="not part of"):
+        teacher_trajectories(m, 6, 1, teacher_steps=3, student_steps=2, solver="ddim", seed=0)
+
+
+def test_config_rejects_steps_that_do_not_nest():
+    with pytest.raises(ValueError, match="multiple"):
+        DistilConfig(teacher="gbn", name="x", student_steps=8, teacher_steps=20)
+    with pytest.raises(ValueError, match="deterministic"):
+        DistilConfig(teacher="gbn", name="x", teacher_solver="ddpm")
+    with pytest.raises(ValueError, match="loss_weighting"):
+        DistilConfig(teacher="gbn", name="x", loss_weighting="uniform")
+
+
+def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monkeypatch):
+    from export.onnx_export import export_checkpoint
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = DistilConfig(teacher=str(tiny_onnx), name="tiny_fast", student_steps=2,
+                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
+                       trajectories=(6, 4), batch_sizes=(3, 2), steps=3, warmup_steps=1,
+                       attention_window=2,
+                       lr=1e-3, log_every=1)
+    d = Distiller(cfg, tmp_path / "run", progress=False)
+    before = {k: v.clone() for k, v in d.model.state_dict().items()}
+    ckpt = d.run()
+    assert d.step == 3
+    assert any(not torch.equal(before[k], v) for k, v in d.model.state_dict().items())
+    assert len((tmp_path / "run" / "log.csv").read_text().splitlines()) == 4
+    # resumes exactly where it stopped
+    assert Distiller(cfg, tmp_path / "run", progress=False).step == 3
+    out, _ = export_checkpoint(ckpt, tmp_path / "tiny_fast.onnx", parity_sides=(8,))
+    m = diffsampler_rt.Model(out)
+    assert m.card["name"] == "tiny_fast"
+    assert (m.card["default_solver"], m.card["default_steps"]) == ("ddim", 2)
+    assert m.card["distillation"]["teacher"] == "tiny"
+    assert m.card["distillation"]["steps"] == 3
+    assert m.card["config"]["unet"]["attention_window"] == 2
+    assert json.dumps(m.card["distillation"]["config"])  # JSON all the way down
+    pts = m.generate(64, 2, seed=0)
+    assert pts.shape == (2, 64, 2) and ((pts >= 0) & (pts < 1)).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m.generate(16, seed=0)  # its own setting: no warning
+    with pytest.warns(UserWarning, match="distilled for ddim with 2 steps"):
+        m.generate(16, seed=0, steps=5)

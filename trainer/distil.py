@@ -1,0 +1,316 @@
+"""Few-step students distilled from a bundled model (trajectory distillation).
+
+Progressive distillation (Salimans & Ho 2022) teaches a student to take in ONE
+deterministic DDIM step what the teacher takes in two, and repeats. Here one round goes
+straight to the student's step grid: the teacher (an exported model run by
+:mod:`diffsampler_rt` with its high-order solver on ``teacher_steps``, a multiple of
+``student_steps``) records its states at the student's timesteps, and the student,
+initialised as the teacher, learns each hop between them as a single DDIM step. Since DDIM
+is linear in the predicted noise, every hop has an exact target: the x0 that lands DDIM on
+the teacher's next state. Loss: squared error of the student's implied x0, weighted by
+SNR_t, i.e. the squared error of the implied noise, like
+the plain training loss (the paper's truncated-SNR weighting, max(SNR, 1), is an option;
+here it let the first, near-pure-noise hop dominate and cost minimum distance).
+
+Teacher trajectories are deterministic in the seed and cached under
+:func:`trainer.data.cache_dir` (keyed by the teacher file's hash).
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import hashlib
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from diffsampler_rt.schedule import timesteps
+from diffsampler_rt.solvers import SOLVERS, solve
+
+from .data import cache_dir
+from .train import load_checkpoint, lr_at, save_checkpoint, update_ema
+from .unet import UNet
+from .warm_start import net_from_onnx
+
+CHECKPOINT = "checkpoint.pt"
+LOG = "log.csv"
+LOSS_WEIGHTINGS = ("snr", "truncated_snr")
+
+
+@dataclass(frozen=True)
+class DistilConfig:
+    """One distillation run; saved in the checkpoint and in the student's model card."""
+
+    #: the teacher: a bundled model name or an ``.onnx`` path
+    teacher: str
+    #: the student's model name (its card and file name)
+    name: str
+    student_steps: int = 8
+    teacher_steps: int = 24
+    teacher_solver: str = "dpmpp_2m"
+    #: the student's attention window (see trainer.unet.UNetConfig.attention_window); at
+    #: the trained sides the attention level is at most 8 cells wide, so 8 changes nothing
+    #: there and keeps big grids linear in n
+    attention_window: int | None = 8
+    sizes: tuple[int, ...] = (8, 16, 32)
+    #: teacher trajectories per grid size (fixed pool, cached)
+    trajectories: tuple[int, ...] = (2048, 1024, 512)
+    #: (state, hop) pairs per size per optimiser step
+    batch_sizes: tuple[int, ...] = (64, 32, 16)
+    #: "snr": squared error of the implied noise (= SNR_t-weighted x0 error, the plain
+    #: training loss's weighting: the low-noise hops that place the points dominate);
+    #: "truncated_snr": max(SNR_t, 1)-weighted x0 error (Salimans & Ho 2022), which here
+    #: lets the first, near-pure-noise hop dominate
+    loss_weighting: str = "snr"
+    steps: int = 1500
+    lr: float = 1e-4
+    warmup_steps: int = 50
+    ema_decay: float = 0.995
+    grad_clip: float = 1.0
+    seed: int = 0
+    threads: int = 1
+    checkpoint_every_s: float = 180.0
+    log_every: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("sizes", "trajectories", "batch_sizes"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        if self.teacher_solver not in SOLVERS or self.teacher_solver == "ddpm":
+            raise ValueError(f"teacher_solver must be a deterministic solver (ddim, dpmpp_2m), "
+                             f"got {self.teacher_solver!r}")
+        if self.student_steps < 1 or self.teacher_steps % self.student_steps:
+            raise ValueError(f"teacher_steps ({self.teacher_steps}) must be a positive multiple "
+                             f"of student_steps ({self.student_steps})")
+        if not len(self.sizes) == len(self.trajectories) == len(self.batch_sizes):
+            raise ValueError("sizes, trajectories and batch_sizes need one entry per size")
+        if self.loss_weighting not in LOSS_WEIGHTINGS:
+            raise ValueError(f"loss_weighting must be one of {LOSS_WEIGHTINGS}, "
+                             f"got {self.loss_weighting!r}")
+        if min(self.sizes) < 4:
+            raise ValueError(f"grid sides must be >= 4, got {self.sizes}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "DistilConfig":
+        d = json.loads(Path(path).read_text())
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown distil config keys {sorted(unknown)}")
+        return cls(**d)
+
+
+def hop_times(num_train_steps: int, student_steps: int) -> np.ndarray:
+    """The student's timesteps followed by -1 (clean data): the hops it learns."""
+    return np.append(timesteps(num_train_steps, student_steps), -1)
+
+
+def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
+                         student_steps: int, solver: str, seed: int,
+                         batch: int = 64) -> np.ndarray:
+    """The teacher's states at the student's timesteps and its final clean sample.
+
+    Returns float32 (student_steps + 1, count, 2, k, k): row j is the state at
+    ``timesteps(T, student_steps)[j]``, the last row the teacher's output (scaled offsets).
+    """
+    T = len(teacher.alpha_bar)
+    ts = timesteps(T, teacher_steps)
+    want = timesteps(T, student_steps)
+    if not set(want) <= set(ts):
+        raise ValueError(f"the {student_steps}-step grid is not part of the {teacher_steps}-step one")
+    rows = {int(t): j for j, t in enumerate(want)}
+    out = np.empty((student_steps + 1, count, 2, k, k), dtype=np.float32)
+    rng = np.random.default_rng([seed, k])
+    for start in range(0, count, batch):
+        b = min(batch, count - start)
+        x = rng.standard_normal((b, 2, k, k))
+
+        def eps_fn(x: np.ndarray, t: int) -> np.ndarray:
+            if t in rows:
+                out[rows[t], start:start + b] = x
+            return teacher.denoise(x, t)
+
+        out[-1, start:start + b] = solve(solver, eps_fn, x, teacher.alpha_bar, ts)
+    return out
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.sha1(path.read_bytes()).hexdigest()[:12]
+
+
+def cached_trajectories(cfg: DistilConfig, teacher, k: int, count: int) -> np.ndarray:
+    """:func:`teacher_trajectories`, cached on disk (keyed by the teacher file's hash)."""
+    key = json.dumps([_file_hash(teacher.path), k, count, cfg.teacher_steps,
+                      cfg.student_steps, cfg.teacher_solver, cfg.seed])
+    path = cache_dir() / f"traj_{teacher.name}_k{k}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy"
+    if path.exists():
+        return np.load(path)
+    traj = teacher_trajectories(teacher, k, count, teacher_steps=cfg.teacher_steps,
+                                student_steps=cfg.student_steps, solver=cfg.teacher_solver,
+                                seed=cfg.seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npy")
+    np.save(tmp, traj)
+    os.replace(tmp, path)
+    return traj
+
+
+def hop_loss(net: torch.nn.Module, x_t: torch.Tensor, x_next: torch.Tensor, t: torch.Tensor,
+             t_next: torch.Tensor, alpha_bar: torch.Tensor,
+             weighting: str = "snr") -> torch.Tensor:
+    """Weighted x0 error of one DDIM hop t -> t_next (t_next = -1: clean data).
+
+    ``weighting``: "snr" (SNR_t: the squared error of the implied eps) or
+    "truncated_snr" (max(SNR_t, 1)).
+
+    DDIM lands on x_next exactly when its x0 prediction equals
+    (x_next - (s_next / s_t) x_t) / (a_next - (s_next / s_t) a_t).
+    """
+    ab_t = alpha_bar[t].view(-1, 1, 1, 1)
+    ab_n = torch.where(t_next >= 0, alpha_bar[t_next.clamp(min=0)],
+                       torch.ones_like(t_next, dtype=alpha_bar.dtype)).view(-1, 1, 1, 1)
+    a_t, s_t = ab_t.sqrt(), (1 - ab_t).sqrt()
+    a_n, s_n = ab_n.sqrt(), (1 - ab_n).sqrt()
+    target = (x_next - (s_n / s_t) * x_t) / (a_n - (s_n / s_t) * a_t)
+    eps = net(x_t, t.float())
+    x0 = (x_t - s_t * eps) / a_t
+    weight = ab_t / (1 - ab_t)
+    if weighting == "truncated_snr":
+        weight = torch.clamp(weight, min=1.0)
+    elif weighting != "snr":
+        raise ValueError(f"unknown weighting {weighting!r}; choose one of {LOSS_WEIGHTINGS}")
+    return torch.mean(weight * (x0 - target) ** 2)
+
+
+class Distiller:
+    """Runs one :class:`DistilConfig` in ``run_dir``; resumes from its checkpoint."""
+
+    def __init__(self, cfg: DistilConfig, run_dir: str | Path, progress: bool = True):
+        import diffsampler_rt
+
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.progress = progress
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        self.teacher = diffsampler_rt.Model(cfg.teacher, threads=cfg.threads)
+        net, self.teacher_cfg, self.teacher_card = net_from_onnx(self.teacher.path)
+        self.model = UNet(self.student_config().unet)
+        self.model.load_state_dict(net.state_dict())
+        self.ema = copy.deepcopy(self.model).requires_grad_(False)
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
+        self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32)
+        self.hops = torch.tensor(hop_times(len(self.teacher.alpha_bar), cfg.student_steps))
+        self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher, k, n))
+                             for k, n in zip(cfg.sizes, cfg.trajectories)}
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step = 0
+        self.elapsed = 0.0
+        ckpt = self.run_dir / CHECKPOINT
+        if ckpt.exists():
+            self._restore(load_checkpoint(ckpt))
+
+    def student_config(self):
+        """The teacher's training config, renamed, with the student's sampling defaults."""
+        return replace(self.teacher_cfg, name=self.cfg.name, default_solver="ddim",
+                       default_sample_steps=self.cfg.student_steps,
+                       unet=replace(self.teacher_cfg.unet,
+                                    attention_window=self.cfg.attention_window))
+
+    def state(self) -> dict[str, Any]:
+        distillation = {"teacher": self.teacher_card["name"],
+                        "teacher_sha1": _file_hash(self.teacher.path),
+                        "teacher_training_steps": self.teacher_card["training_steps"],
+                        "steps": self.step, "seconds": round(self.elapsed),
+                        "config": self.cfg.to_dict()}
+        provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
+                      f" steps) distilled to {self.cfg.student_steps} DDIM steps with "
+                      f"`python -m trainer distil` for {self.step} steps, "
+                      f"{self.elapsed / 60:.0f} min on CPU")
+        return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
+                "step": self.step, "elapsed_s": self.elapsed,
+                "training_steps": self.teacher_card["training_steps"],
+                "train_seconds": self.teacher_card.get("train_seconds"),
+                "card_extra": {"distillation": distillation, "provenance": provenance},
+                "model": self.model.state_dict(), "ema": self.ema.state_dict(),
+                "opt": self.opt.state_dict(), "torch_gen": self.gen.get_state()}
+
+    def _restore(self, st: dict[str, Any]) -> None:
+        if st.get("distil_config") != self.cfg.to_dict():
+            raise ValueError(f"{self.run_dir / CHECKPOINT} was written by a different config; "
+                             "use a new run directory")
+        self.model.load_state_dict(st["model"])
+        self.ema.load_state_dict(st["ema"])
+        self.opt.load_state_dict(st["opt"])
+        self.gen.set_state(st["torch_gen"])
+        self.step = st["step"]
+        self.elapsed = st["elapsed_s"]
+
+    def save(self) -> Path:
+        path = self.run_dir / CHECKPOINT
+        save_checkpoint(path, self.state())
+        return path
+
+    def train_step(self) -> list[float]:
+        for group in self.opt.param_groups:
+            group["lr"] = lr_at(self.cfg, self.step)
+        self.opt.zero_grad(set_to_none=True)
+        losses = []
+        for (k, traj), b in zip(self.trajectories.items(), self.cfg.batch_sizes):
+            j = torch.randint(0, self.cfg.student_steps, (b,), generator=self.gen)
+            i = torch.randint(0, traj.shape[1], (b,), generator=self.gen)
+            loss = hop_loss(self.model, traj[j, i], traj[j + 1, i], self.hops[j],
+                            self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting)
+            loss.backward()
+            losses.append(loss.item())
+        torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+        self.opt.step()
+        update_ema(self.ema, self.model, self.cfg.ema_decay)
+        self.step += 1
+        return losses
+
+    def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
+        """Distil to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
+        until = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
+        log_path = self.run_dir / LOG
+        new_log = not log_path.exists()
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=until, initial=self.step, desc=f"distil {self.cfg.name}",
+                       unit="step")
+        start = last_ckpt = time.monotonic()
+        with open(log_path, "a", newline="") as fh:
+            log = csv.writer(fh)
+            if new_log:
+                log.writerow(["step", "elapsed_s", "lr", "loss"]
+                             + [f"loss_k{k}" for k in self.cfg.sizes])
+            while self.step < until:
+                t0 = time.monotonic()
+                losses = self.train_step()
+                self.elapsed += time.monotonic() - t0
+                if self.step % self.cfg.log_every == 0 or self.step == until:
+                    log.writerow([self.step, f"{self.elapsed:.1f}",
+                                  f"{lr_at(self.cfg, self.step - 1):.3g}", f"{sum(losses):.5g}"]
+                                 + [f"{v:.5g}" for v in losses])
+                    fh.flush()
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{sum(losses):.4g}")
+                now = time.monotonic()
+                if now - last_ckpt >= self.cfg.checkpoint_every_s:
+                    self.save()
+                    last_ckpt = now
+                if max_seconds is not None and now - start >= max_seconds:
+                    break
+        if bar is not None:
+            bar.close()
+        return self.save()
