@@ -86,9 +86,11 @@ def _cmd_list(args: argparse.Namespace) -> None:
     for name in bundled_models():
         card = load(name).card
         size = (MODELS_DIR / f"{name}.onnx").stat().st_size / 2**20
-        print(f"{name:<14} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
+        distilled = card.get("distillation")
+        origin = f", distilled from {distilled['teacher']}" if distilled else ""
+        print(f"{name:<18} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
               f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
-              f"({size:.1f} MiB)")
+              f"({size:.1f} MiB{origin})")
 
 
 def _cmd_info(args: argparse.Namespace) -> None:

@@ -133,3 +133,21 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
         m.generate(16, seed=0)  # its own setting: no warning
     with pytest.warns(UserWarning, match="distilled for ddim with 2 steps"):
         m.generate(16, seed=0, steps=5)
+
+
+def test_difference_term_charges_cell_to_cell_error_only():
+    ab = torch.tensor(alphas_cumprod({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02,
+                                      "num_steps": 1000}), dtype=torch.float32)
+    x_t = torch.randn(2, 2, 6, 6)
+    t, t_next = torch.full((2,), 124), torch.full((2,), -1)
+    a, s = ab[124].sqrt(), (1 - ab[124]).sqrt()
+    eps = torch.randn(2, 2, 6, 6)
+    x0 = (x_t - s * eps) / a  # the clean target this eps implies
+    smooth = _Oracle(eps + 0.1)  # the same error in every cell
+    checker = _Oracle(eps + 0.1 * (-1.0) ** torch.arange(6).add(torch.arange(6)[:, None]))
+    plain = [hop_loss(o, x_t, x0, t, t_next, ab).item() for o in (smooth, checker)]
+    assert plain[0] == pytest.approx(plain[1], rel=1e-4)  # same size of error
+    diff = [hop_loss(o, x_t, x0, t, t_next, ab, difference_weight=1.0).item()
+            for o in (smooth, checker)]
+    assert diff[0] == pytest.approx(plain[0], rel=1e-4)
+    assert diff[1] > 5 * plain[1]  # neighbours differ by 0.2 everywhere: (1 + 2 * 4 * 5/6) x

@@ -68,6 +68,10 @@ class DistilConfig:
     #: "truncated_snr": max(SNR_t, 1)-weighted x0 error (Salimans & Ho 2022), which here
     #: lets the first, near-pure-noise hop dominate
     loss_weighting: str = "snr"
+    #: weight of the squared differences of the x0 error between neighbouring cells: an
+    #: error that differs from cell to cell moves neighbouring points against each other
+    #: (it costs minimum distance), a smooth one moves them together
+    difference_weight: float = 0.0
     steps: int = 1500
     lr: float = 1e-4
     warmup_steps: int = 50
@@ -164,11 +168,12 @@ def cached_trajectories(cfg: DistilConfig, teacher, k: int, count: int) -> np.nd
 
 def hop_loss(net: torch.nn.Module, x_t: torch.Tensor, x_next: torch.Tensor, t: torch.Tensor,
              t_next: torch.Tensor, alpha_bar: torch.Tensor,
-             weighting: str = "snr") -> torch.Tensor:
+             weighting: str = "snr", difference_weight: float = 0.0) -> torch.Tensor:
     """Weighted x0 error of one DDIM hop t -> t_next (t_next = -1: clean data).
 
     ``weighting``: "snr" (SNR_t: the squared error of the implied eps) or
-    "truncated_snr" (max(SNR_t, 1)).
+    "truncated_snr" (max(SNR_t, 1)). ``difference_weight`` adds that weight times the
+    squared differences of the error between horizontally and vertically adjacent cells.
 
     DDIM lands on x_next exactly when its x0 prediction equals
     (x_next - (s_next / s_t) x_t) / (a_next - (s_next / s_t) a_t).
@@ -186,7 +191,14 @@ def hop_loss(net: torch.nn.Module, x_t: torch.Tensor, x_next: torch.Tensor, t: t
         weight = torch.clamp(weight, min=1.0)
     elif weighting != "snr":
         raise ValueError(f"unknown weighting {weighting!r}; choose one of {LOSS_WEIGHTINGS}")
-    return torch.mean(weight * (x0 - target) ** 2)
+    err = x0 - target
+    loss = torch.mean(weight * err ** 2)
+    if difference_weight:
+        dx = err[..., :, 1:] - err[..., :, :-1]
+        dy = err[..., 1:, :] - err[..., :-1, :]
+        loss = loss + difference_weight * (torch.mean(weight * dx ** 2)
+                                           + torch.mean(weight * dy ** 2))
+    return loss
 
 
 class Distiller:
@@ -268,7 +280,8 @@ class Distiller:
             j = torch.randint(0, self.cfg.student_steps, (b,), generator=self.gen)
             i = torch.randint(0, traj.shape[1], (b,), generator=self.gen)
             loss = hop_loss(self.model, traj[j, i], traj[j + 1, i], self.hops[j],
-                            self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting)
+                            self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting,
+                            self.cfg.difference_weight)
             loss.backward()
             losses.append(loss.item())
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
