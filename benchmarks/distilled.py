@@ -6,7 +6,9 @@ benchmarks/fidelity.py: the teacher at its own default, the teacher cut to the s
 number of steps (DDIM and DPM-Solver++(2M)), and the student at its default. Columns as in
 benchmarks/solver_sweep.py (spectrum MAE with the floor between two reference batches,
 relative differences of mean OT energy, L2*, integration MSEs and minimum distance; time per
-set of a batched call). Writes benchmarks/results/distilled.md.
+set of a batched call). Before them, at n = 1024, how close each fast setting comes to the
+teacher's own default output (what distillation aims at; no reference sampler needed).
+Writes benchmarks/results/distilled.md.
 
     python benchmarks/distilled.py [--models gbn_fast] [--sizes 256 576 1024] [--sets 64]
 """
@@ -16,6 +18,7 @@ import argparse
 import datetime as dt
 import os
 import sys
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -25,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import TOL_MEAN, TOL_MIND  # noqa: E402
 from benchmarks.solver_sweep import compare, table  # noqa: E402
+from trainer.stats import min_distance, radial_spectrum, spectrum_mae  # noqa: E402
 
 
 def students() -> list[str]:
@@ -44,6 +48,28 @@ def runs_for(student: str) -> list[tuple[str, str, str, int]]:
             (f"**{student}, {solver} {steps} (distilled)**", student, solver, steps)]
 
 
+def to_teacher(student: str, n: int, sets: int) -> list[str]:
+    """How close each fast setting comes to the teacher at its default (no reference sampler:
+    cheap, so many sets). Floor: the teacher at its default from other noise."""
+    card = diffsampler_rt.load(student).card
+    teacher = diffsampler_rt.load(card["distillation"]["teacher"])
+    base = teacher.generate(n, sets, seed=100)
+    spec, mind = radial_spectrum(base)[1], min_distance(base).mean()
+    lines = [f"Closeness to the teacher at its default, n = {n}, {sets} sets a side:", "",
+             "| setting | spectrum MAE to the teacher | min distance vs the teacher |",
+             "|---|---|---|"]
+    runs = [("teacher default, other noise (floor)", teacher.name, None, None)] + [
+        (label, model, solver, steps) for label, model, solver, steps in runs_for(student)[1:]]
+    for label, model, solver, steps in runs:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gen = diffsampler_rt.load(model).generate(n, sets, seed=1, solver=solver, steps=steps)
+        lines.append(f"| {label} | {spectrum_mae(radial_spectrum(gen)[1], spec):.4f} | "
+                     f"{100 * (min_distance(gen).mean() / mind - 1):+.1f} % |")
+        print(student, n, lines[-1], flush=True)
+    return lines + [""]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", nargs="*", help="students (default: every distilled bundled model)")
@@ -53,6 +79,8 @@ def main() -> None:
                    default=[128, 64, 16],
                    help="reference sets per batch as in fidelity.py (--sets, --slow-sets, "
                         "--slow-4096; slow samplers use FAST at n = 1024): its cache is reused")
+    p.add_argument("--teacher-sets", type=int, default=128,
+                   help="sets a side for the closeness to the teacher (n = 1024)")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "distilled.md")
@@ -60,28 +88,35 @@ def main() -> None:
     models = a.models or students()
     refs = argparse.Namespace(sets=a.ref_sets[0], slow_sets=a.ref_sets[1],
                               slow_4096=a.ref_sets[2], spectrum_sets=1024)
-    lines = ["# Distilled students vs their teachers", "",
-             f"`python benchmarks/distilled.py --sets {a.sets}` on {dt.date.today().isoformat()} "
-             f"({os.cpu_count()} cores; ms/set is one batched call here, indicative only: "
-             "benchmarks/results/speed.md has the clean timings). Every row: generated vs "
-             "reference batch A (the sets of benchmarks/fidelity.py); the first row is an "
-             "independent reference batch B (the noise floor). Relative differences of the "
-             f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} %). "
-             "Trained sides: 8, 16, 32 (n = 64, 256, 1024); 576 is unseen.", ""]
+    header = ["# Distilled students vs their teachers", "",
+              f"`python benchmarks/distilled.py` ({os.cpu_count()} cores; ms/set is one "
+              "batched call here, taken while other jobs ran: indicative only, "
+              "benchmarks/results/speed.md has the clean timings). Every row: generated vs "
+              "reference batch A (the sets of benchmarks/fidelity.py); the first row is an "
+              "independent reference batch B (the noise floor). Relative differences of the "
+              f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} "
+              "%). Trained sides: 8, 16, 32 (n = 64, 256, 1024); 576 is unseen. Each model's "
+              "section is kept in benchmarks/results/distilled/ and says how it was run.", ""]
+    kept = a.out.parent / "distilled"
+    kept.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         for name in models:
             card = diffsampler_rt.load(name).card
             d = card["distillation"]
-            lines += [f"## {name}", "",
-                      f"Distilled from `{d['teacher']}` ({d['config']['teacher_solver']} "
-                      f"{d['config']['teacher_steps']} steps as teacher) to "
-                      f"{card['default_solver']} {card['default_steps']} steps: {d['steps']} "
-                      f"optimiser steps, {d['seconds'] / 60:.0f} min on CPU.", ""]
+            lines = [f"## {name}", "",
+                     f"Distilled from `{d['teacher']}` ({d['config']['teacher_solver']} "
+                     f"{d['config']['teacher_steps']} steps as teacher) to "
+                     f"{card['default_solver']} {card['default_steps']} steps: {d['steps']} "
+                     f"optimiser steps, {d['seconds'] / 60:.0f} min on CPU (shared with other "
+                     f"jobs). Measured {dt.date.today().isoformat()} with `--sets {a.sets} "
+                     f"--ref-sets {' '.join(map(str, a.ref_sets))}`.", ""]
+            lines += to_teacher(name, 1024, a.teacher_sets)
             for n in a.sizes:
                 rows = compare(pool, card["sampler"], n, runs_for(name), a, refs)
                 lines += [f"### n = {n} ({rows[0]['count']} sets a side)", ""] + table(rows) + [""]
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text("\n".join(lines))
+            (kept / f"{name}.md").write_text("\n".join(lines))
+    sections = [p.read_text() for p in sorted(kept.glob("*.md"))]
+    a.out.write_text("\n".join(header + sections))
     print(f"wrote {a.out}")
 
 
