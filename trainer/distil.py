@@ -18,11 +18,9 @@ Teacher trajectories are deterministic in the seed and cached under
 from __future__ import annotations
 
 import copy
-import csv
 import hashlib
 import json
 import os
-import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -34,12 +32,11 @@ from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
 from .data import cache_dir
-from .train import load_checkpoint, lr_at, save_checkpoint, update_ema
+from .train import load_checkpoint, lr_at, run_loop, save_checkpoint, update_ema
 from .unet import UNet
 from .warm_start import net_from_onnx
 
 CHECKPOINT = "checkpoint.pt"
-LOG = "log.csv"
 LOSS_WEIGHTINGS = ("snr", "truncated_snr")
 
 
@@ -292,38 +289,5 @@ class Distiller:
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Distil to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
-        until = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
-        log_path = self.run_dir / LOG
-        new_log = not log_path.exists()
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=until, initial=self.step, desc=f"distil {self.cfg.name}",
-                       unit="step")
-        start = last_ckpt = time.monotonic()
-        with open(log_path, "a", newline="") as fh:
-            log = csv.writer(fh)
-            if new_log:
-                log.writerow(["step", "elapsed_s", "lr", "loss"]
-                             + [f"loss_k{k}" for k in self.cfg.sizes])
-            while self.step < until:
-                t0 = time.monotonic()
-                losses = self.train_step()
-                self.elapsed += time.monotonic() - t0
-                if self.step % self.cfg.log_every == 0 or self.step == until:
-                    log.writerow([self.step, f"{self.elapsed:.1f}",
-                                  f"{lr_at(self.cfg, self.step - 1):.3g}", f"{sum(losses):.5g}"]
-                                 + [f"{v:.5g}" for v in losses])
-                    fh.flush()
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{sum(losses):.4g}")
-                now = time.monotonic()
-                if now - last_ckpt >= self.cfg.checkpoint_every_s:
-                    self.save()
-                    last_ckpt = now
-                if max_seconds is not None and now - start >= max_seconds:
-                    break
-        if bar is not None:
-            bar.close()
-        return self.save()
+        return run_loop(self, sizes=self.cfg.sizes, desc=f"distil {self.cfg.name}",
+                        until_step=until_step, max_seconds=max_seconds)

@@ -121,37 +121,49 @@ class Trainer:
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Train to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
-        until = self.cfg.steps if until_step is None else min(until_step, self.cfg.steps)
-        log_path = self.run_dir / LOG
-        new_log = not log_path.exists()
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=until, initial=self.step, desc=self.cfg.name, unit="step")
-        start = time.monotonic()
-        last_ckpt = start
-        with open(log_path, "a", newline="") as fh:
-            log = csv.writer(fh)
-            if new_log:
-                log.writerow(["step", "elapsed_s", "lr", "loss"]
-                             + [f"loss_k{k}" for k in self.cfg.data.sizes])
-            while self.step < until:
-                t0 = time.monotonic()
-                losses = self.train_step()
-                self.elapsed += time.monotonic() - t0
-                if self.step % self.cfg.log_every == 0 or self.step == until:
-                    log.writerow([self.step, f"{self.elapsed:.1f}", f"{lr_at(self.cfg, self.step - 1):.3g}",
-                                  f"{sum(losses):.5f}"] + [f"{l:.5f}" for l in losses])
-                    fh.flush()
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{sum(losses):.4f}")
-                now = time.monotonic()
-                if now - last_ckpt >= self.cfg.checkpoint_every_s:
-                    self.save()
-                    last_ckpt = now
-                if max_seconds is not None and now - start >= max_seconds:
-                    break
-        if bar is not None:
-            bar.close()
-        return self.save()
+        return run_loop(self, sizes=self.cfg.data.sizes, desc=self.cfg.name,
+                        until_step=until_step, max_seconds=max_seconds)
+
+
+def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
+             until_step: int | None = None, max_seconds: float | None = None) -> Path:
+    """The step loop of :class:`Trainer` and :class:`trainer.distil.Distiller`.
+
+    ``runner`` has ``cfg`` (steps, lr schedule, log_every, checkpoint_every_s), ``run_dir``,
+    ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns the loss per grid size)
+    and ``save()``. Logs to ``run_dir/log.csv``, checkpoints every few minutes and at the end.
+    """
+    cfg = runner.cfg
+    until = cfg.steps if until_step is None else min(until_step, cfg.steps)
+    log_path = runner.run_dir / LOG
+    new_log = not log_path.exists()
+    bar = None
+    if runner.progress:
+        from tqdm import tqdm
+        bar = tqdm(total=until, initial=runner.step, desc=desc, unit="step")
+    start = last_ckpt = time.monotonic()
+    with open(log_path, "a", newline="") as fh:
+        log = csv.writer(fh)
+        if new_log:
+            log.writerow(["step", "elapsed_s", "lr", "loss"] + [f"loss_k{k}" for k in sizes])
+        while runner.step < until:
+            t0 = time.monotonic()
+            losses = runner.train_step()
+            runner.elapsed += time.monotonic() - t0
+            if runner.step % cfg.log_every == 0 or runner.step == until:
+                log.writerow([runner.step, f"{runner.elapsed:.1f}",
+                              f"{lr_at(cfg, runner.step - 1):.3g}", f"{sum(losses):.5g}"]
+                             + [f"{v:.5g}" for v in losses])
+                fh.flush()
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{sum(losses):.4g}")
+            now = time.monotonic()
+            if now - last_ckpt >= cfg.checkpoint_every_s:
+                runner.save()
+                last_ckpt = now
+            if max_seconds is not None and now - start >= max_seconds:
+                break
+    if bar is not None:
+        bar.close()
+    return runner.save()
