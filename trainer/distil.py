@@ -7,10 +7,11 @@ straight to the student's step grid: the teacher (an exported model run by
 ``student_steps``) records its states at the student's timesteps, and the student,
 initialised as the teacher, learns each hop between them as a single DDIM step. Since DDIM
 is linear in the predicted noise, every hop has an exact target: the x0 that lands DDIM on
-the teacher's next state. Loss: squared error of the student's implied x0, weighted by
-SNR_t, i.e. the squared error of the implied noise, like
-the plain training loss (the paper's truncated-SNR weighting, max(SNR, 1), is an option;
-here it let the first, near-pure-noise hop dominate and cost minimum distance).
+the teacher's next state. Loss: the squared error of the implied noise (the student's x0
+error weighted by SNR_t, as in the plain training loss; the paper's truncated-SNR weighting,
+max(SNR, 1), is an option, but here it let the first, near-pure-noise hop dominate and cost
+minimum distance), plus optionally the squared differences of the x0 error between
+neighbouring cells (``difference_weight``).
 
 Teacher trajectories are deterministic in the seed and cached under
 :func:`trainer.data.cache_dir` (keyed by the teacher file's hash).
