@@ -54,23 +54,25 @@ def _optimise(args: argparse.Namespace) -> None:
                          + ",".join(repr(v) for v in row["per_set"]) + "\n")
 
 
+def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:
+    """Options shared by ``train`` and ``distil`` (both resumable step loops)."""
+    parser.add_argument("--run-dir", type=Path, help=run_dir_help)
+    parser.add_argument("--steps", type=int, help="stop at this step (default: the config's)")
+    parser.add_argument("--minutes", type=float, help="stop after this much wall time")
+    parser.add_argument("--no-progress", action="store_true")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m trainer", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
 
     t = sub.add_parser("train", help="train (or resume) a model from a JSON config")
     t.add_argument("config", type=Path, help="e.g. trainer/configs/sobol_owen.json")
-    t.add_argument("--run-dir", type=Path, help="default: runs/<config name>")
-    t.add_argument("--steps", type=int, help="stop at this step (default: the config's)")
-    t.add_argument("--minutes", type=float, help="stop after this much wall time")
-    t.add_argument("--no-progress", action="store_true")
+    _run_options(t, "default: runs/<config name>")
 
     d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
-    d.add_argument("--run-dir", type=Path, help="default: runs/<student name>")
-    d.add_argument("--steps", type=int, help="stop at this step (default: the config's)")
-    d.add_argument("--minutes", type=float, help="stop after this much wall time")
-    d.add_argument("--no-progress", action="store_true")
+    _run_options(d, "default: runs/<student name>")
 
     r = sub.add_parser("prepare", help="build (and cache) a config's training pools")
     r.add_argument("config", type=Path)

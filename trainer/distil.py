@@ -33,7 +33,7 @@ from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
 from .data import cache_dir
-from .train import load_checkpoint, lr_at, run_loop, save_checkpoint, update_ema
+from .train import load_checkpoint, optimiser_step, run_loop, save_checkpoint
 from .unet import UNet
 from .warm_start import net_from_onnx
 
@@ -270,23 +270,16 @@ class Distiller:
         return path
 
     def train_step(self) -> list[float]:
-        for group in self.opt.param_groups:
-            group["lr"] = lr_at(self.cfg, self.step)
-        self.opt.zero_grad(set_to_none=True)
-        losses = []
-        for (k, traj), b in zip(self.trajectories.items(), self.cfg.batch_sizes):
-            j = torch.randint(0, self.cfg.student_steps, (b,), generator=self.gen)
-            i = torch.randint(0, traj.shape[1], (b,), generator=self.gen)
-            loss = hop_loss(self.model, traj[j, i], traj[j + 1, i], self.hops[j],
-                            self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting,
-                            self.cfg.difference_weight)
-            loss.backward()
-            losses.append(loss.item())
-        torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
-        self.opt.step()
-        update_ema(self.ema, self.model, self.cfg.ema_decay)
-        self.step += 1
-        return losses
+        """One optimiser step on one batch of hops per grid size; returns the loss per size."""
+        def losses():
+            for traj, b in zip(self.trajectories.values(), self.cfg.batch_sizes):
+                j = torch.randint(0, self.cfg.student_steps, (b,), generator=self.gen)
+                i = torch.randint(0, traj.shape[1], (b,), generator=self.gen)
+                yield hop_loss(self.model, traj[j, i], traj[j + 1, i], self.hops[j],
+                               self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting,
+                               self.cfg.difference_weight)
+
+        return optimiser_step(self, losses())
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Distil to ``until_step`` (default: the config's steps) or for ``max_seconds``."""

@@ -7,7 +7,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 import torch
@@ -104,25 +104,36 @@ class Trainer:
 
     def train_step(self) -> list[float]:
         """One optimiser step on one batch per grid size; returns the loss per size."""
-        for group in self.opt.param_groups:
-            group["lr"] = lr_at(self.cfg, self.step)
-        self.opt.zero_grad(set_to_none=True)
-        losses = []
-        for x0 in self.batches.draw(self.rng):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
-                loss = self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
-            loss.backward()  # summed over sizes: gradients accumulate
-            losses.append(loss.item())
-        torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
-        self.opt.step()
-        update_ema(self.ema, self.model, self.cfg.ema_decay)
-        self.step += 1
-        return losses
+        def losses():
+            for x0 in self.batches.draw(self.rng):
+                with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
+                    yield self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
+
+        return optimiser_step(self, losses())
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Train to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
         return run_loop(self, sizes=self.cfg.data.sizes, desc=self.cfg.name,
                         until_step=until_step, max_seconds=max_seconds)
+
+
+def optimiser_step(runner: Any, losses: Iterable[torch.Tensor]) -> list[float]:
+    """One step of :class:`Trainer` or :class:`trainer.distil.Distiller`: learning rate for
+    ``runner.step``, gradients summed over ``losses`` (one per grid size, drawn lazily after
+    the gradients are cleared), clipping, AdamW, EMA. Returns the losses as floats."""
+    cfg = runner.cfg
+    for group in runner.opt.param_groups:
+        group["lr"] = lr_at(cfg, runner.step)
+    runner.opt.zero_grad(set_to_none=True)
+    values = []
+    for loss in losses:
+        loss.backward()  # summed over sizes: gradients accumulate
+        values.append(loss.item())
+    torch.nn.utils.clip_grad_norm_(runner.model.parameters(), cfg.grad_clip)
+    runner.opt.step()
+    update_ema(runner.ema, runner.model, cfg.ema_decay)
+    runner.step += 1
+    return values
 
 
 def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
