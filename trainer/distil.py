@@ -147,9 +147,10 @@ def _file_hash(path: Path) -> str:
     return hashlib.sha1(path.read_bytes()).hexdigest()[:12]
 
 
-def cached_trajectories(cfg: DistilConfig, teacher, k: int, count: int) -> np.ndarray:
+def cached_trajectories(cfg: DistilConfig, teacher, teacher_sha1: str, k: int,
+                        count: int) -> np.ndarray:
     """:func:`teacher_trajectories`, cached on disk (keyed by the teacher file's hash)."""
-    key = json.dumps([_file_hash(teacher.path), k, count, cfg.teacher_steps,
+    key = json.dumps([teacher_sha1, k, count, cfg.teacher_steps,
                       cfg.student_steps, cfg.teacher_solver, cfg.seed])
     path = cache_dir() / f"traj_{teacher.name}_k{k}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy"
     if path.exists():
@@ -219,7 +220,9 @@ class Distiller:
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
         self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32)
         self.hops = torch.tensor(hop_times(len(self.teacher.alpha_bar), cfg.student_steps))
-        self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher, k, n))
+        self.teacher_sha1 = _file_hash(self.teacher.path)  # once: saves repeat it
+        self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher,
+                                                                     self.teacher_sha1, k, n))
                              for k, n in zip(cfg.sizes, cfg.trajectories)}
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step = 0
@@ -237,7 +240,7 @@ class Distiller:
 
     def state(self) -> dict[str, Any]:
         distillation = {"teacher": self.teacher_card["name"],
-                        "teacher_sha1": _file_hash(self.teacher.path),
+                        "teacher_sha1": self.teacher_sha1,
                         "teacher_training_steps": self.teacher_card["training_steps"],
                         "steps": self.step, "seconds": round(self.elapsed),
                         "config": self.cfg.to_dict()}
