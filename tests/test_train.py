@@ -77,7 +77,40 @@ def test_bundled_recipes_load():
     from pathlib import Path
     for path in Path("trainer/configs").glob("*.json"):
         cfg = TrainConfig.load(path)
-        assert cfg.name == path.stem
+        # a second training stage shares its model's name
+        assert cfg.name == path.stem.removesuffix("_stage2")
+        if path.stem.endswith("_stage2"):
+            assert cfg.init_from == f"runs/{cfg.name}/{cfg.name}.onnx"
+            assert cfg.unet == TrainConfig.load(path.with_name(f"{cfg.name}.json")).unet
+
+
+def test_second_stage_starts_from_the_exported_weights(tiny_onnx, tmp_path):
+    from dataclasses import replace
+    from .conftest import TINY_ONNX_UNET
+    ref = torch.load(tiny_onnx.with_suffix(".state"))
+    cfg = replace(tiny_config(**TINY_ONNX_UNET), init_from=str(tiny_onnx))
+    tr = Trainer(cfg, tmp_path / "stage2", progress=False)
+    for net in (tr.model, tr.ema):
+        for name, value in net.state_dict().items():
+            assert torch.equal(value, ref[name]), name
+    tr.run(until_step=2)
+    assert load_checkpoint(tmp_path / "stage2" / "checkpoint.pt")["config"]["init_from"] \
+        == str(tiny_onnx)
+    # a checkpoint works as a source too (its EMA weights)
+    ckpt_cfg = replace(cfg, init_from=str(tmp_path / "stage2" / "checkpoint.pt"))
+    again = Trainer(ckpt_cfg, tmp_path / "stage3", progress=False)
+    for name, value in again.model.state_dict().items():
+        assert torch.equal(value, tr.ema.state_dict()[name]), name
+
+
+def test_second_stage_refuses_another_architecture(tiny_onnx, tmp_path):
+    from dataclasses import replace
+    cfg = replace(tiny_config(), init_from=str(tiny_onnx))  # no coord bits, no axial attention
+    with pytest.raises(ValueError, match="architecture"):
+        Trainer(cfg, tmp_path, progress=False)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        Trainer(replace(cfg, init_from=str(tmp_path / "nope.onnx")), tmp_path / "b",
+                progress=False)
 
 
 def test_bf16_autocast_trains(tmp_path):

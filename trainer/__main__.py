@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t = sub.add_parser("train", help="train (or resume) a model from a JSON config")
     t.add_argument("config", type=Path, help="e.g. trainer/configs/sobol_owen.json")
-    _run_options(t, "default: runs/<config name>")
+    _run_options(t, "default: runs/<config file name without .json>")
 
     d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             from .config import TrainConfig
             from .train import Trainer
             cfg = TrainConfig.load(args.config)
-            run_dir = args.run_dir or Path("runs") / cfg.name
+            run_dir = args.run_dir or Path("runs") / args.config.stem
             tr = Trainer(cfg, run_dir, progress=not args.no_progress)
             path = tr.run(until_step=args.steps,
                           max_seconds=None if args.minutes is None else 60 * args.minutes)

@@ -55,6 +55,11 @@ class TrainConfig:
     #: steps matched 50 DDIM steps in benchmarks/results/solver_sweep.md
     default_sample_steps: int = 20
     default_solver: str = "dpmpp_2m"
+    #: start from the weights of an earlier stage instead of a random init: an exported
+    #: ``.onnx`` file or a training ``checkpoint.pt`` (its EMA weights), path relative to the
+    #: working directory; its architecture must equal ``unet``. Optimiser, EMA and data
+    #: stream start afresh with this config's schedule (a second training stage).
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         from diffsampler_rt.solvers import SOLVERS

@@ -55,6 +55,22 @@ def model_from_checkpoint(state: dict[str, Any], ema: bool = True) -> tuple[UNet
     return net, cfg
 
 
+def initial_weights(cfg: TrainConfig) -> dict[str, torch.Tensor]:
+    """The weights ``cfg.init_from`` names (an ``.onnx`` export or a checkpoint's EMA)."""
+    path = Path(cfg.init_from)
+    if not path.is_file():
+        raise FileNotFoundError(f"init_from {cfg.init_from!r} does not exist")
+    if path.suffix == ".onnx":
+        from .warm_start import net_from_onnx
+        net, src_cfg, _ = net_from_onnx(path)
+    else:
+        net, src_cfg = model_from_checkpoint(load_checkpoint(path))
+    if src_cfg.unet != cfg.unet:
+        raise ValueError(f"init_from {cfg.init_from!r} has architecture {src_cfg.unet}, "
+                         f"this config needs {cfg.unet}")
+    return net.state_dict()
+
+
 class Trainer:
     """Trains one config in ``run_dir``; resumes exactly from ``run_dir/checkpoint.pt``."""
 
@@ -78,6 +94,10 @@ class Trainer:
         ckpt = self.run_dir / CHECKPOINT
         if ckpt.exists():
             self._restore(load_checkpoint(ckpt))
+        elif cfg.init_from:
+            weights = initial_weights(cfg)
+            self.model.load_state_dict(weights)
+            self.ema.load_state_dict(weights)
 
     def state(self) -> dict[str, Any]:
         return {"config": self.cfg.to_dict(), "step": self.step, "elapsed_s": self.elapsed,
