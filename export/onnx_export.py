@@ -57,6 +57,8 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "provenance": (f"trained with `python -m trainer train` (config below) for "
                        f"{training_steps} steps"
                        + (f", {train_seconds / 60:.0f} min on CPU" if train_seconds else "")
+                       + (f", starting from the weights of {cfg.init_from} (an earlier "
+                          "training stage, exported)" if cfg.init_from else "")
                        + f"; exported {_dt.date.today().isoformat()}"),
         "config": cfg.to_dict(),
     }

@@ -77,11 +77,14 @@ def test_bundled_recipes_load():
     from pathlib import Path
     for path in Path("trainer/configs").glob("*.json"):
         cfg = TrainConfig.load(path)
-        # a second training stage shares its model's name
-        assert cfg.name == path.stem.removesuffix("_stage2")
-        if path.stem.endswith("_stage2"):
-            assert cfg.init_from == f"runs/{cfg.name}/{cfg.name}.onnx"
-            assert cfg.unet == TrainConfig.load(path.with_name(f"{cfg.name}.json")).unet
+        # later training stages (NAME_stageN.json) share their model's name and start from
+        # the previous stage's export in that stage's run directory
+        stem, _, stage = path.stem.partition("_stage")
+        assert cfg.name == stem
+        if stage:
+            previous = stem if stage == "2" else f"{stem}_stage{int(stage) - 1}"
+            assert cfg.init_from == f"runs/{previous}/{cfg.name}.onnx"
+            assert cfg.unet == TrainConfig.load(path.with_name(f"{previous}.json")).unet
 
 
 def test_second_stage_starts_from_the_exported_weights(tiny_onnx, tmp_path):
