@@ -26,3 +26,21 @@ def test_fidelity_report_runs(tmp_path):
                           str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "out" / "violins.png").stat().st_size > 1000
+
+
+def test_post_processing_projections_reach_and_keep_the_structure():
+    import numpy as np
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.post_processing import project_to_net, stratify_1d
+    from trainer.samplers import sample
+    from trainer.stats import empty_elementary_fraction, stratified_projections
+
+    rng = np.random.default_rng(0)
+    white = rng.random((3, 256, 2))
+    assert np.all(empty_elementary_fraction(white) > 0.2)
+    assert np.all(empty_elementary_fraction(project_to_net(white)) == 0)  # any set -> a net
+    assert np.all(stratified_projections(stratify_1d(white)))
+    owen = sample("sobol_owen", 256, count=3, seed=1)
+    np.testing.assert_array_equal(project_to_net(owen), owen)            # a net stays put
+    ldbn = sample("ldbn", 256, count=3, seed=1)
+    np.testing.assert_array_equal(stratify_1d(ldbn), ldbn)
