@@ -18,6 +18,14 @@ SEED_CSV = ROOT.parent / "shared" / "reference" / "radial_spectra_original_n1024
 SEED_COLUMNS = ["poisson_disk", "gbn", "sot", "ldbn", "sobol_owen", "rank1"]
 
 
+def model_hash(model: str | Path) -> str:
+    """sha256 of a bundled model's (or an .onnx path's) file: which model a result is of."""
+    import hashlib
+
+    from diffsampler_rt.model import resolve
+    return hashlib.sha256(resolve(model).read_bytes()).hexdigest()
+
+
 def seed_curve(sampler: str) -> np.ndarray | None:
     """The seed paper's mean radial spectrum of ``sampler`` at n = 1024 (79 bins), if any."""
     if not SEED_CSV.exists() or sampler not in SEED_COLUMNS:

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import hashlib
 import json
 import os
 import sys
@@ -39,7 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
-from benchmarks.common import SEED_COLUMNS, cache_dir, cached_sets, seed_curve  # noqa: E402
+from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
+                               seed_curve)
 from trainer.samplers import SLOW  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import (Gaussians, Heavisides, empty_elementary_fraction,  # noqa: E402
@@ -182,10 +182,6 @@ def evaluate(pool, name: str, a) -> dict:
         print(f"{name} n={n}: MAE {row['mae']:.4f} (floor {row['floor']:.4f}); "
               + ", ".join(f"{k} {100 * row[k]['rel']:+.1f}%" for k in STATS), flush=True)
     return res
-
-
-def model_hash(name: str) -> str:
-    return hashlib.sha256(diffsampler_rt.model.resolve(name).read_bytes()).hexdigest()
 
 
 def settings(a) -> dict:

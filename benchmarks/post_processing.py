@@ -32,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
+from benchmarks.common import model_hash  # noqa: E402
 from diffsampler_rt.grid import decode  # noqa: E402
 from diffsampler_rt.schedule import timesteps  # noqa: E402
 from diffsampler_rt.solvers import solve  # noqa: E402
@@ -76,11 +77,6 @@ def project_to_net(sets: np.ndarray) -> np.ndarray:
         np.put_along_axis(bit, order, half, axis=-1)
         prefix = (prefix << 1) | bit
     return np.stack([_place(prefix, x, n), _place(j, sets[..., 1], n)], -1)
-
-
-def _sha1(path: Path) -> str:
-    import hashlib
-    return hashlib.sha1(Path(path).read_bytes()).hexdigest()
 
 
 def _torus_shift(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -147,7 +143,7 @@ def main() -> None:
     ref, floor = sample(name, n, count=2 * S, seed=100), sample(name, n, count=S, seed=200)
     spec = radial_spectrum(ref)
     lines += [f"## {name}, n = {n}: renoise-denoise and ancestral sampling", "",
-              f"Model file sha1 {_sha1(m.path)[:12]} ({m.card['training_steps']} steps"
+              f"Model file sha256 {model_hash(m.path)[:12]} ({m.card['training_steps']} steps"
               + (f" from {m.card['config']['init_from']}" if m.card["config"].get("init_from")
                  else "") + ").", "", head,
               row("reference B (floor)", floor, ref, spec),
