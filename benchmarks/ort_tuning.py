@@ -27,17 +27,13 @@ import onnxruntime as ort
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from diffsampler_rt.model import resolve  # noqa: E402
+from diffsampler_rt.model import resolve, session_options  # noqa: E402
 
 K = 32
 
 
 def session(path: str, threads: int | None = None, profile: str | None = None):
-    opts = ort.SessionOptions()  # as diffsampler_rt.Model does
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    opts.inter_op_num_threads = 1
-    if threads:
-        opts.intra_op_num_threads = threads
+    opts = session_options(threads or None)  # as diffsampler_rt.Model does
     if profile:
         opts.enable_profiling = True
         opts.profile_file_prefix = profile

@@ -67,11 +67,7 @@ class Model:
 
     def __init__(self, model: str | os.PathLike, *, threads: int | None = None):
         self.path = resolve(model)
-        opts = ort.SessionOptions()
-        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        opts.inter_op_num_threads = 1
-        if threads is not None:
-            opts.intra_op_num_threads = _validate.integer("threads", threads)
+        opts = session_options(None if threads is None else _validate.integer("threads", threads))
         try:
             self.session = ort.InferenceSession(str(self.path), sess_options=opts,
                                                 providers=["CPUExecutionProvider"])
@@ -192,6 +188,21 @@ class Model:
             grid = x / float(self.card["offset_scale"])
             bar.update(len(sub))
             yield decode(grid, stratified=self.card["embedding"] == "stratified")
+
+
+def session_options(threads: int | None = None) -> "ort.SessionOptions":
+    """The onnxruntime session options every :class:`Model` uses (benchmarks reuse them).
+
+    All graph optimisations; one inter-op thread (the U-Net is one chain of operators run
+    sequentially, so the cores go to intra-op parallelism); ``threads`` intra-op threads
+    (default: onnxruntime's, one per physical core).
+    """
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.inter_op_num_threads = 1
+    if threads is not None:
+        opts.intra_op_num_threads = threads
+    return opts
 
 
 @lru_cache(maxsize=16)
