@@ -233,6 +233,14 @@ def _fmt_rel(d: dict, tol: float) -> str:
     return f"{100 * d['rel']:+.1f} %{mark} ({100 * d['floor']:+.1f})"
 
 
+def _train_time(secs: float, card: dict, cfg: dict) -> str:
+    """", 44 min with 1 CPU thread(s)" or ", 9 min on a GPU" (cards before train_devices: CPU)."""
+    if "cuda" in card.get("train_devices", ["cpu"]):
+        where = " and ".join("a GPU" if d == "cuda" else "CPU" for d in card["train_devices"])
+        return f", {secs / 60:.0f} min on {where}"
+    return f", {secs / 60:.0f} min with {cfg.get('threads', 1)} CPU thread(s)"
+
+
 def model_card_text(c: dict) -> str:
     """The model card in a sentence or three: data, architecture, training, sampling."""
     cfg = c.get("config", {})
@@ -254,7 +262,7 @@ def model_card_text(c: dict) -> str:
             + (f", {params / 1e6:.2f} M parameters" if params else ""))
     secs = c.get("train_seconds")
     train = (f"{c['training_steps']} steps (batches {d.get('batch_sizes')} at k = "
-             f"{d.get('sizes')})" + (f", {secs / 60:.0f} min with {cfg.get('threads', 1)} CPU thread(s)" if secs else "")
+             f"{d.get('sizes')})" + (_train_time(secs, c, cfg) if secs else "")
              + (", bf16 autocast" if cfg.get("bf16") else ""))
     return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
             f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "

@@ -28,7 +28,11 @@ DEFAULT_LICENCE = ("MIT. Weights trained by diffsampler from synthetic point set
                    "its own reference samplers; no third-party data.")
 
 
+_DEVICE_NAMES = {"cpu": "CPU", "cuda": "GPU"}
+
+
 def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | None = None,
+               train_devices: list[str] | None = None,
                weights: str = "fp32", parameters: int | None = None,
                extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """The metadata the runtime needs, plus provenance. All values are JSON."""
@@ -43,6 +47,7 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "schedule": dict(cfg.schedule),
         "training_steps": int(training_steps),
         "train_seconds": None if train_seconds is None else round(float(train_seconds)),
+        "train_devices": list(train_devices or ["cpu"]),
         "parameters": parameters,
         "trained_sizes": [k * k for k in cfg.data.sizes],
         "trained_sides": list(cfg.data.sizes),
@@ -56,7 +61,9 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "licence": DEFAULT_LICENCE,
         "provenance": (f"trained with `python -m trainer train` (config below) for "
                        f"{training_steps} steps"
-                       + (f", {train_seconds / 60:.0f} min on CPU" if train_seconds else "")
+                       + (f", {train_seconds / 60:.0f} min on "
+                          + " and ".join(_DEVICE_NAMES.get(d, d) for d in train_devices or ["cpu"])
+                          if train_seconds else "")
                        + (f", starting from the weights of {cfg.init_from} (an earlier "
                           "training stage, exported)" if cfg.init_from else "")
                        + f"; exported {_dt.date.today().isoformat()}"),
@@ -154,6 +161,7 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
     # ``distillation`` record for the card
     card = model_card(cfg, training_steps=state.get("training_steps", state["step"]),
                       train_seconds=state.get("train_seconds", state.get("elapsed_s")),
+                      train_devices=state.get("devices"),
                       parameters=sum(p.numel() for p in net.parameters()),
                       extra=state.get("card_extra"))
     out = export_model(net, card, path, fp16_weights=fp16_weights)

@@ -49,6 +49,13 @@ def test_shifted_copies_are_translations_of_their_set(cache):
     assert not _is_translate(sets[0][0], sets[1][0])
 
 
+def test_pool_does_not_depend_on_the_workers(tmp_path, monkeypatch):
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "a"))
+    one = make_pool("gbn", "ot", 4, 3, seed=2, shifts=2)
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "b"))
+    np.testing.assert_array_equal(make_pool("gbn", "ot", 4, 3, seed=2, shifts=2, workers=2), one)
+
+
 def test_shifts_refused_for_samplers_that_are_not_toroidal(cache):
     assert "sot" not in TOROIDAL and "gbn" in TOROIDAL
     with pytest.raises(ValueError, match="not translation invariant"):

@@ -59,6 +59,7 @@ def test_self_contained_file_with_card(tiny_onnx):
         assert key in card, key
     assert card["weights"] == "fp16"
     assert card["trained_sizes"] == [16, 64]
+    assert card["train_devices"] == ["cpu"]
 
 
 def test_runtime_reads_exported_model(tiny_onnx):

@@ -74,6 +74,8 @@ def test_unknown_sampler_and_bad_sizes():
         sample("rank1", 0)
     with pytest.raises(TypeError, match="count must be an integer"):
         sample("rank1", 16, count=1.5)
+    with pytest.raises(ValueError, match="workers must be >= 1, got 0"):
+        sample("sot", 16, workers=0)
 
 
 def test_poisson_disk_keeps_its_radius():
@@ -111,6 +113,11 @@ def test_slow_samplers_give_the_same_sets_whatever_the_count():
     a = sample("poisson_disk", 16, count=3, seed=9)
     b = sample("poisson_disk", 16, count=2, seed=9)
     np.testing.assert_array_equal(a[:2], b)
+
+
+def test_slow_samplers_give_the_same_sets_whatever_the_workers():
+    one = sample("sot", 16, count=3, seed=5)
+    np.testing.assert_array_equal(sample("sot", 16, count=3, seed=5, workers=2), one)
 
 
 def test_ramp_cdf_is_exact():

@@ -23,6 +23,7 @@ def test_exact_resume_after_stop(tmp_path):
     a = load_checkpoint(tmp_path / "a" / "checkpoint.pt")
     b = load_checkpoint(tmp_path / "b" / "checkpoint.pt")
     assert a["step"] == b["step"] == cfg.steps
+    assert a["devices"] == b["devices"] == ["cpu"]  # for the card: where the run trained
     for key in ("model", "ema"):
         for name in a[key]:
             assert torch.equal(a[key][name], b[key][name]), f"{key}.{name} differs"

@@ -60,6 +60,9 @@ def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:
     parser.add_argument("--steps", type=int, help="stop at this step (default: the config's)")
     parser.add_argument("--minutes", type=float, help="stop after this much wall time")
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device, e.g. cuda (default cpu); not part of the recipe, "
+                             "so a run can resume on another device")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     t = sub.add_parser("train", help="train (or resume) a model from a JSON config")
     t.add_argument("config", type=Path, help="e.g. trainer/configs/sobol_owen.json")
     _run_options(t, "default: runs/<config file name without .json>")
+    t.add_argument("--workers", type=int, default=1,
+                   help="processes that build the slow samplers' pools (same pools for any)")
 
     d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
@@ -76,12 +81,15 @@ def main(argv: list[str] | None = None) -> int:
 
     r = sub.add_parser("prepare", help="build (and cache) a config's training pools")
     r.add_argument("config", type=Path)
+    r.add_argument("--workers", type=int, default=1,
+                   help="processes for the slow samplers (same pools for any number)")
 
     s = sub.add_parser("sample", help="draw point sets from a reference sampler")
     s.add_argument("name")
     s.add_argument("n", type=int)
     s.add_argument("--count", type=int, default=1)
     s.add_argument("--seed", type=int, default=None)
+    s.add_argument("--workers", type=int, default=1, help="processes (slow samplers)")
     s.add_argument("-o", "--output", type=Path, required=True, help=".npy, .txt or .csv")
 
     o = sub.add_parser("optimise", help="optimise a trained net's input noise for a property")
@@ -105,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             from .train import Trainer
             cfg = TrainConfig.load(args.config)
             run_dir = args.run_dir or Path("runs") / args.config.stem
-            tr = Trainer(cfg, run_dir, progress=not args.no_progress)
+            tr = Trainer(cfg, run_dir, progress=not args.no_progress, device=args.device,
+                         workers=args.workers)
             path = tr.run(until_step=args.steps,
                           max_seconds=None if args.minutes is None else 60 * args.minutes)
             print(f"step {tr.step}: checkpoint {path}")
@@ -113,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             from .distil import DistilConfig, Distiller
             dcfg = DistilConfig.load(args.config)
             dist = Distiller(dcfg, args.run_dir or Path("runs") / dcfg.name,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, device=args.device)
             path = dist.run(until_step=args.steps,
                             max_seconds=None if args.minutes is None else 60 * args.minutes)
             print(f"step {dist.step}: checkpoint {path}")
@@ -121,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
             from .config import TrainConfig
             from .data import Batches
             cfg = TrainConfig.load(args.config)
-            pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty()).pools
+            pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(),
+                            workers=args.workers).pools
             for k, pool in pools.items():
                 print(f"{cfg.name}: k={k} pool {pool.shape}")
         elif args.cmd == "optimise":
@@ -129,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             from .samplers import sample
             pts = sample(args.name, args.n, count=args.count, seed=args.seed,
-                         progress=sys.stderr.isatty())
+                         progress=sys.stderr.isatty(), workers=args.workers)
             _save_points(pts, args.output)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)

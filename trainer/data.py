@@ -24,9 +24,9 @@ def cache_dir() -> Path:
 
 
 def _pool_chunk(sampler: str, embedding: str, k: int, count: int, seed: int, start: int,
-                shifts: int, rng: np.random.Generator) -> np.ndarray:
+                shifts: int, rng: np.random.Generator, workers: int = 1) -> np.ndarray:
     """Sets start .. start+count of a pool, each embedded ``shifts`` times (set-major)."""
-    pts = sample(sampler, k * k, count=count, seed=rng)
+    pts = sample(sampler, k * k, count=count, seed=rng, workers=workers)
     if shifts > 1:
         move = np.random.default_rng([seed, k, 1, start]).random((count, shifts - 1, 1, 2))
         pts = np.concatenate([pts[:, None], (pts[:, None] + move) % 1.0], axis=1)
@@ -35,12 +35,13 @@ def _pool_chunk(sampler: str, embedding: str, k: int, count: int, seed: int, sta
 
 
 def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
-              progress: bool = False, shifts: int = 1) -> np.ndarray:
+              progress: bool = False, shifts: int = 1, workers: int = 1) -> np.ndarray:
     """``count`` reference sets embedded on the k x k grid: float32 (count * shifts, 2, k, k).
 
     Deterministic in the arguments and cached on disk under :func:`cache_dir`. A pool of
     fewer sets is the prefix of a larger one with the same arguments (sets come from
-    per-set child streams), so a cached larger pool is reused.
+    per-set child streams), so a cached larger pool is reused. ``workers`` processes draw
+    the sets of the slow samplers; the pool does not depend on it.
     """
     if shifts > 1 and sampler not in TOROIDAL:
         raise ValueError(f"shifts={shifts}: sampler {sampler!r} is not translation invariant "
@@ -58,7 +59,8 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
         from tqdm import tqdm
         chunks = tqdm(chunks, desc=f"pool {sampler} k={k}", unit="chunk", leave=False)
     pool = np.concatenate([_pool_chunk(sampler, embedding, k, min(CHUNK, count - s), seed, s,
-                                       shifts, rng) for s in chunks]).astype(np.float32)
+                                       shifts, rng, workers)
+                           for s in chunks]).astype(np.float32)
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"{stem}_{count}.npy"
     tmp = path.with_suffix(f".tmp{os.getpid()}.npy")
@@ -70,13 +72,14 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
 class Batches:
     """Draws one batch per grid size from fresh sets or from a cached pool."""
 
-    def __init__(self, cfg: DataConfig, seed: int, progress: bool = False):
+    def __init__(self, cfg: DataConfig, seed: int, progress: bool = False, workers: int = 1):
         if not len(cfg.sizes) == len(cfg.batch_sizes) == len(cfg.pool_sizes):
             raise ValueError("sizes, batch_sizes and pool_sizes must have the same length")
         if cfg.shifts < 1:
             raise ValueError(f"shifts must be >= 1, got {cfg.shifts}")
         self.cfg = cfg
-        self.pools = {k: make_pool(cfg.sampler, cfg.embedding, k, p, seed, progress, cfg.shifts)
+        self.pools = {k: make_pool(cfg.sampler, cfg.embedding, k, p, seed, progress, cfg.shifts,
+                                   workers)
                       for k, p in zip(cfg.sizes, cfg.pool_sizes) if p > 0}
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:

@@ -203,7 +203,8 @@ def hop_loss(net: torch.nn.Module, x_t: torch.Tensor, x_next: torch.Tensor, t: t
 class Distiller:
     """Runs one :class:`DistilConfig` in ``run_dir``; resumes from its checkpoint."""
 
-    def __init__(self, cfg: DistilConfig, run_dir: str | Path, progress: bool = True):
+    def __init__(self, cfg: DistilConfig, run_dir: str | Path, progress: bool = True,
+                 device: str = "cpu"):
         import diffsampler_rt
 
         self.cfg = cfg
@@ -214,11 +215,15 @@ class Distiller:
         torch.manual_seed(cfg.seed)
         self.teacher = diffsampler_rt.Model(cfg.teacher, threads=cfg.threads)
         net, self.teacher_cfg, self.teacher_card = net_from_onnx(self.teacher.path)
+        # the device is not part of the recipe: teacher trajectories and the random draws
+        # stay on the CPU, the student trains where it is told
+        self.device = torch.device(device)
         self.model = UNet(self.student_config().unet)
         self.model.load_state_dict(net.state_dict())
+        self.model.to(self.device)
         self.ema = copy.deepcopy(self.model).requires_grad_(False)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
-        self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32)
+        self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32).to(self.device)
         self.hops = torch.tensor(hop_times(len(self.teacher.alpha_bar), cfg.student_steps))
         self.teacher_sha1 = _file_hash(self.teacher.path)  # once: saves repeat it
         self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher,
@@ -247,7 +252,8 @@ class Distiller:
         provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
                       f" steps) distilled to {self.cfg.student_steps} DDIM steps with "
                       f"`python -m trainer distil` for {self.step} steps, "
-                      f"{self.elapsed / 60:.0f} min on CPU")
+                      f"{self.elapsed / 60:.0f} min on "
+                      + ("GPU" if self.device.type == "cuda" else "CPU"))
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
                 "step": self.step, "elapsed_s": self.elapsed,
                 "training_steps": self.teacher_card["training_steps"],
@@ -278,9 +284,10 @@ class Distiller:
             for traj, b in zip(self.trajectories.values(), self.cfg.batch_sizes):
                 j = torch.randint(0, self.cfg.student_steps, (b,), generator=self.gen)
                 i = torch.randint(0, traj.shape[1], (b,), generator=self.gen)
-                yield hop_loss(self.model, traj[j, i], traj[j + 1, i], self.hops[j],
-                               self.hops[j + 1], self.alpha_bar, self.cfg.loss_weighting,
-                               self.cfg.difference_weight)
+                dev = self.device
+                yield hop_loss(self.model, traj[j, i].to(dev), traj[j + 1, i].to(dev),
+                               self.hops[j].to(dev), self.hops[j + 1].to(dev), self.alpha_bar,
+                               self.cfg.loss_weighting, self.cfg.difference_weight)
 
         return optimiser_step(self, losses())
 

@@ -74,19 +74,23 @@ def initial_weights(cfg: TrainConfig) -> dict[str, torch.Tensor]:
 class Trainer:
     """Trains one config in ``run_dir``; resumes exactly from ``run_dir/checkpoint.pt``."""
 
-    def __init__(self, cfg: TrainConfig, run_dir: str | Path, progress: bool = True):
+    def __init__(self, cfg: TrainConfig, run_dir: str | Path, progress: bool = True,
+                 device: str = "cpu", workers: int = 1):
         self.cfg = cfg
+        # not part of the config: a run may move between CPU and GPU and still resume
+        self.device = torch.device(device)
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.progress = progress
         torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
-        self.model = UNet(cfg.unet)
+        self.model = UNet(cfg.unet).to(self.device)
         self.ema = copy.deepcopy(self.model).requires_grad_(False)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr,
                                      weight_decay=cfg.weight_decay)
+        self.devices = [self.device.type]  # every device this run has trained on
         self.diffusion = Diffusion(cfg.schedule)
-        self.batches = Batches(cfg.data, cfg.seed, progress)
+        self.batches = Batches(cfg.data, cfg.seed, progress, workers)
         self.rng = np.random.default_rng([cfg.seed, 1])
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step = 0
@@ -103,7 +107,7 @@ class Trainer:
         return {"config": self.cfg.to_dict(), "step": self.step, "elapsed_s": self.elapsed,
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
                 "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state,
-                "torch_gen": self.gen.get_state()}
+                "torch_gen": self.gen.get_state(), "devices": self.devices}
 
     def _restore(self, st: dict[str, Any]) -> None:
         if st["config"] != self.cfg.to_dict():
@@ -116,6 +120,7 @@ class Trainer:
         self.gen.set_state(st["torch_gen"])
         self.step = st["step"]
         self.elapsed = st["elapsed_s"]
+        self.devices = sorted(set(st.get("devices", ["cpu"])) | {self.device.type})
 
     def save(self) -> Path:
         path = self.run_dir / CHECKPOINT
@@ -126,8 +131,10 @@ class Trainer:
         """One optimiser step on one batch per grid size; returns the loss per size."""
         def losses():
             for x0 in self.batches.draw(self.rng):
-                with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.cfg.bf16):
-                    yield self.diffusion.loss(self.model, torch.from_numpy(x0), self.gen)
+                with torch.autocast(self.device.type, dtype=torch.bfloat16,
+                                    enabled=self.cfg.bf16):
+                    yield self.diffusion.loss(self.model, torch.from_numpy(x0).to(self.device),
+                                              self.gen)
 
         return optimiser_step(self, losses())
 

@@ -40,8 +40,13 @@ SLOW = frozenset({"poisson_disk", "gbn", "sot", "sot_ramp", "gbn_blob"})
 TOROIDAL = frozenset({"rank1", "lattice", "poisson_disk", "gbn"})
 
 
+def _one_set(name: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    return SAMPLERS[name](n, 1, rng)[0]
+
+
 def sample(name: str, n: int, *, count: int = 1,
-           seed: int | np.random.Generator | None = None, progress: bool = False) -> np.ndarray:
+           seed: int | np.random.Generator | None = None, progress: bool = False,
+           workers: int = 1) -> np.ndarray:
     """Draw ``count`` point sets of ``n`` points from the reference sampler ``name``.
 
     Parameters
@@ -56,6 +61,9 @@ def sample(name: str, n: int, *, count: int = 1,
         Seeds the sampler; the same seed gives the same sets.
     progress : bool, optional
         Show a progress bar (slow samplers, which run set by set).
+    workers : int, optional
+        Processes for the slow samplers (:data:`SLOW`); each set has its own random stream,
+        so the sets are the same for any number of workers. Ignored by the fast samplers.
 
     Returns
     -------
@@ -69,7 +77,7 @@ def sample(name: str, n: int, *, count: int = 1,
     """
     if name not in SAMPLERS:
         raise ValueError(f"unknown sampler {name!r}; choose one of {sorted(SAMPLERS)}")
-    for label, value, low in (("n", n, 1), ("count", count, 1)):
+    for label, value, low in (("n", n, 1), ("count", count, 1), ("workers", workers, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{label} must be an integer, got {value!r}")
         if value < low:
@@ -78,10 +86,19 @@ def sample(name: str, n: int, *, count: int = 1,
     if name in SLOW:
         # set by set, each from its own child stream: a set does not depend on the count
         streams = rng.spawn(int(count))
-        if progress:
-            from tqdm import tqdm
-            streams = tqdm(streams, desc=f"{name} n={n}", unit="set")
-        pts = np.stack([SAMPLERS[name](int(n), 1, g)[0] for g in streams])
+        if workers > 1 and count > 1:
+            from concurrent.futures import ProcessPoolExecutor
+            with ProcessPoolExecutor(min(int(workers), int(count))) as pool:
+                sets = pool.map(_one_set, [name] * count, [int(n)] * count, streams)
+                if progress:
+                    from tqdm import tqdm
+                    sets = tqdm(sets, total=count, desc=f"{name} n={n}", unit="set")
+                pts = np.stack(list(sets))
+        else:
+            if progress:
+                from tqdm import tqdm
+                streams = tqdm(streams, desc=f"{name} n={n}", unit="set")
+            pts = np.stack([_one_set(name, int(n), g) for g in streams])
     else:
         pts = SAMPLERS[name](int(n), int(count), rng)
     if pts.shape != (count, n, 2):  # a sampler broke the shared contract
