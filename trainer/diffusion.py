@@ -30,7 +30,7 @@ class Diffusion:
         """E_t,eps |eps - eps_theta(x_t, t)|^2 with t uniform over the T steps (eq. 14).
 
         ``t`` and ``eps`` come from the CPU generator ``gen`` whatever device ``x0`` is on,
-        so a run draws the same noise on CPU and GPU and resumes exactly on either.
+        so a run draws the same noise on CPU and GPU (the arithmetic differs slightly).
         """
         t = torch.randint(0, self.num_steps, (x0.shape[0],), generator=gen)
         eps = torch.randn(x0.shape, generator=gen).to(x0.device)
