@@ -151,3 +151,16 @@ def test_difference_term_charges_cell_to_cell_error_only():
             for o in (smooth, checker)]
     assert diff[0] == pytest.approx(plain[0], rel=1e-4)
     assert diff[1] > 5 * plain[1]  # neighbours differ by 0.2 everywhere: (1 + 2 * 4 * 5/6) x
+
+
+def test_bundled_students_were_distilled_from_the_bundled_teachers():
+    # `python -m trainer distil trainer/configs/distil/NAME.json` distils from the bundled
+    # teacher, so a student must have been made from exactly that file to be reproducible
+    from trainer.distil import _file_hash
+    for name in diffsampler_rt.list_models():
+        card = diffsampler_rt.load(name).card
+        if "distillation" not in card:
+            continue
+        d = card["distillation"]
+        teacher = diffsampler_rt.load(d["teacher"])
+        assert d["teacher_sha1"] == _file_hash(teacher.path), (name, d["teacher"])
