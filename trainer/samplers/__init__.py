@@ -5,6 +5,8 @@ Every sampler shares one contract: ``fn(n, count, rng) -> float64 array (count, 
 """
 from __future__ import annotations
 
+import contextlib
+from concurrent.futures import ProcessPoolExecutor
 from typing import Callable
 
 import numpy as np
@@ -86,19 +88,15 @@ def sample(name: str, n: int, *, count: int = 1,
     if name in SLOW:
         # set by set, each from its own child stream: a set does not depend on the count
         streams = rng.spawn(int(count))
-        if workers > 1 and count > 1:
-            from concurrent.futures import ProcessPoolExecutor
-            with ProcessPoolExecutor(min(int(workers), int(count))) as pool:
-                sets = pool.map(_one_set, [name] * count, [int(n)] * count, streams)
-                if progress:
-                    from tqdm import tqdm
-                    sets = tqdm(sets, total=count, desc=f"{name} n={n}", unit="set")
-                pts = np.stack(list(sets))
-        else:
+        parallel = workers > 1 and count > 1
+        with (ProcessPoolExecutor(min(int(workers), int(count))) if parallel
+              else contextlib.nullcontext()) as pool:
+            sets = (pool.map if parallel else map)(_one_set, [name] * count, [int(n)] * count,
+                                                   streams)
             if progress:
                 from tqdm import tqdm
-                streams = tqdm(streams, desc=f"{name} n={n}", unit="set")
-            pts = np.stack([_one_set(name, int(n), g) for g in streams])
+                sets = tqdm(sets, total=count, desc=f"{name} n={n}", unit="set")
+            pts = np.stack(list(sets))
     else:
         pts = SAMPLERS[name](int(n), int(count), rng)
     if pts.shape != (count, n, 2):  # a sampler broke the shared contract
