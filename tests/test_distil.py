@@ -111,6 +111,8 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
                        attention_window=2,
                        lr=1e-3, log_every=1)
     d = Distiller(cfg, tmp_path / "run", progress=False)
+    # the card's training figures are the teacher's: say it trained on a GPU
+    d.teacher_card = {**d.teacher_card, "train_seconds": 60, "train_devices": ["cuda"]}
     before = {k: v.clone() for k, v in d.model.state_dict().items()}
     ckpt = d.run()
     assert d.step == 3
@@ -124,6 +126,7 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
     assert (m.card["default_solver"], m.card["default_steps"]) == ("ddim", 2)
     assert m.card["distillation"]["teacher"] == "tiny"
     assert m.card["distillation"]["steps"] == 3
+    assert (m.card["train_seconds"], m.card["train_devices"]) == (60, ["cuda"])
     assert m.card["config"]["unet"]["attention_window"] == 2
     assert json.dumps(m.card["distillation"]["config"])  # JSON all the way down
     pts = m.generate(64, 2, seed=0)

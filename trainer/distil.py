@@ -257,7 +257,9 @@ class Distiller:
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
                 "step": self.step, "elapsed_s": self.elapsed,
                 "training_steps": self.teacher_card["training_steps"],
+                # the card's training figures are the teacher's: seconds and devices together
                 "train_seconds": self.teacher_card.get("train_seconds"),
+                "devices": self.teacher_card.get("train_devices", ["cpu"]),
                 "card_extra": {"distillation": distillation, "provenance": provenance},
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
                 "opt": self.opt.state_dict(), "torch_gen": self.gen.get_state()}
