@@ -38,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
+from diffsampler_rt.card import describe_devices  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
                                seed_curve)
 from trainer.samplers import SLOW  # noqa: E402
@@ -234,10 +235,10 @@ def _fmt_rel(d: dict, tol: float) -> str:
 
 
 def _train_time(secs: float, card: dict, cfg: dict) -> str:
-    """", 44 min with 1 CPU thread(s)" or ", 9 min on a GPU" (cards before train_devices: CPU)."""
-    if "cuda" in card.get("train_devices", ["cpu"]):
-        where = " and ".join("a GPU" if d == "cuda" else "CPU" for d in card["train_devices"])
-        return f", {secs / 60:.0f} min on {where}"
+    """", 44 min with 1 CPU thread(s)" or ", 9 min on GPU" (cards before train_devices: CPU)."""
+    devices = card.get("train_devices", ["cpu"])
+    if devices != ["cpu"]:
+        return f", {secs / 60:.0f} min on {describe_devices(devices)}"
     return f", {secs / 60:.0f} min with {cfg.get('threads', 1)} CPU thread(s)"
 
 

@@ -23,6 +23,12 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
             "min_side": int}
 
 
+def describe_devices(devices: list[str] | None) -> str:
+    """"CPU", "GPU" or "GPU and CPU" for a list of torch device types (none given: CPU)."""
+    names = {"cpu": "CPU", "cuda": "GPU"}
+    return " and ".join(names.get(d, d) for d in devices or ["cpu"])
+
+
 def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     """Validate the ONNX custom metadata of ``source`` and return its card."""
     if CARD_KEY not in meta:

@@ -16,7 +16,7 @@ import onnx
 import torch
 from onnx import helper, numpy_helper
 
-from diffsampler_rt.card import CARD_KEY, FORMAT_KEY, FORMAT_VERSION
+from diffsampler_rt.card import CARD_KEY, FORMAT_KEY, FORMAT_VERSION, describe_devices
 from trainer.config import TrainConfig
 from trainer.train import load_checkpoint, model_from_checkpoint
 from trainer.unet import UNet
@@ -26,9 +26,6 @@ MIN_SIDE = 4
 
 DEFAULT_LICENCE = ("MIT. Weights trained by diffsampler from synthetic point sets made by "
                    "its own reference samplers; no third-party data.")
-
-
-_DEVICE_NAMES = {"cpu": "CPU", "cuda": "GPU"}
 
 
 def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | None = None,
@@ -62,7 +59,7 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "provenance": (f"trained with `python -m trainer train` (config below) for "
                        f"{training_steps} steps"
                        + (f", {train_seconds / 60:.0f} min on "
-                          + " and ".join(_DEVICE_NAMES.get(d, d) for d in train_devices or ["cpu"])
+                          + describe_devices(train_devices)
                           if train_seconds else "")
                        + (f", starting from the weights of {cfg.init_from} (an earlier "
                           "training stage, exported)" if cfg.init_from else "")

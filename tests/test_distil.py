@@ -118,8 +118,15 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
     assert d.step == 3
     assert any(not torch.equal(before[k], v) for k, v in d.model.state_dict().items())
     assert len((tmp_path / "run" / "log.csv").read_text().splitlines()) == 4
-    # resumes exactly where it stopped
+    # resumes exactly where it stopped, and remembers where the student trained before
+    from trainer.train import load_checkpoint, save_checkpoint
+    st = load_checkpoint(ckpt)
+    assert st["student_devices"] == ["cpu"]
+    (tmp_path / "moved").mkdir()
+    save_checkpoint(tmp_path / "moved" / ckpt.name, {**st, "student_devices": ["cuda"]})
     assert Distiller(cfg, tmp_path / "run", progress=False).step == 3
+    moved = Distiller(cfg, tmp_path / "moved", progress=False)
+    assert moved.step == 3 and "min on CPU and GPU" in moved.state()["card_extra"]["provenance"]
     out, _ = export_checkpoint(ckpt, tmp_path / "tiny_fast.onnx", parity_sides=(8,))
     m = diffsampler_rt.Model(out)
     assert m.card["name"] == "tiny_fast"
@@ -127,6 +134,7 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
     assert m.card["distillation"]["teacher"] == "tiny"
     assert m.card["distillation"]["steps"] == 3
     assert (m.card["train_seconds"], m.card["train_devices"]) == (60, ["cuda"])
+    assert "min on CPU" in m.card["provenance"]  # the student's own run
     assert m.card["config"]["unet"]["attention_window"] == 2
     assert json.dumps(m.card["distillation"]["config"])  # JSON all the way down
     pts = m.generate(64, 2, seed=0)
@@ -159,11 +167,11 @@ def test_difference_term_charges_cell_to_cell_error_only():
 def test_bundled_students_were_distilled_from_the_bundled_teachers():
     # `python -m trainer distil trainer/configs/distil/NAME.json` distils from the bundled
     # teacher, so a student must have been made from exactly that file to be reproducible
-    from trainer.distil import _file_hash
+    from trainer.distil import file_hash
     for name in diffsampler_rt.list_models():
         card = diffsampler_rt.load(name).card
         if "distillation" not in card:
             continue
         d = card["distillation"]
         teacher = diffsampler_rt.load(d["teacher"])
-        assert d["teacher_sha1"] == _file_hash(teacher.path), (name, d["teacher"])
+        assert d["teacher_sha1"] == file_hash(teacher.path), (name, d["teacher"])

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from diffsampler_rt.card import describe_devices
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
@@ -143,7 +144,8 @@ def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
     return out
 
 
-def _file_hash(path: Path) -> str:
+def file_hash(path: Path) -> str:
+    """The short SHA-1 a student's card records for its teacher's ONNX file."""
     return hashlib.sha1(path.read_bytes()).hexdigest()[:12]
 
 
@@ -225,13 +227,14 @@ class Distiller:
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
         self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32).to(self.device)
         self.hops = torch.tensor(hop_times(len(self.teacher.alpha_bar), cfg.student_steps))
-        self.teacher_sha1 = _file_hash(self.teacher.path)  # once: saves repeat it
+        self.teacher_sha1 = file_hash(self.teacher.path)  # once: saves repeat it
         self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher,
                                                                      self.teacher_sha1, k, n))
                              for k, n in zip(cfg.sizes, cfg.trajectories)}
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step = 0
         self.elapsed = 0.0
+        self.devices = [self.device.type]  # every device the student has trained on
         ckpt = self.run_dir / CHECKPOINT
         if ckpt.exists():
             self._restore(load_checkpoint(ckpt))
@@ -252,8 +255,7 @@ class Distiller:
         provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
                       f" steps) distilled to {self.cfg.student_steps} DDIM steps with "
                       f"`python -m trainer distil` for {self.step} steps, "
-                      f"{self.elapsed / 60:.0f} min on "
-                      + ("GPU" if self.device.type == "cuda" else "CPU"))
+                      f"{self.elapsed / 60:.0f} min on {describe_devices(self.devices)}")
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
                 "step": self.step, "elapsed_s": self.elapsed,
                 "training_steps": self.teacher_card["training_steps"],
@@ -262,7 +264,8 @@ class Distiller:
                 "devices": self.teacher_card.get("train_devices", ["cpu"]),
                 "card_extra": {"distillation": distillation, "provenance": provenance},
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
-                "opt": self.opt.state_dict(), "torch_gen": self.gen.get_state()}
+                "opt": self.opt.state_dict(), "torch_gen": self.gen.get_state(),
+                "student_devices": self.devices}
 
     def _restore(self, st: dict[str, Any]) -> None:
         if st.get("distil_config") != self.cfg.to_dict():
@@ -274,6 +277,7 @@ class Distiller:
         self.gen.set_state(st["torch_gen"])
         self.step = st["step"]
         self.elapsed = st["elapsed_s"]
+        self.devices = sorted(set(st.get("student_devices", ["cpu"])) | {self.device.type})
 
     def save(self) -> Path:
         path = self.run_dir / CHECKPOINT
