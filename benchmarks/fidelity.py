@@ -267,7 +267,10 @@ def model_card_text(c: dict) -> str:
              + (", bf16 autocast" if cfg.get("bf16") else ""))
     return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
             f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "
-            f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps.")
+            f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
+            + ("; the (0, m, 2)-net structure imposed on the decoded sets at power-of-two "
+               "grid sides (diffsampler_rt.structure)" if c.get("structure") == "dyadic_net"
+               else "") + ".")
 
 
 def report(results: list[dict], missing: list[str], out: Path) -> None:

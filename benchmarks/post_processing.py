@@ -1,4 +1,4 @@
-"""Fixes applied after the network, measured: why the runtime applies none of them.
+"""Fixes applied after the network, measured: why the runtime applies only one of them.
 
 The learned sets miss two things their samplers have exactly: combinatorial structure
 (Sobol'+Owen sets are (0, m, 2)-nets; LDBN sets have one point per 1/n strip of each axis)
@@ -8,7 +8,11 @@ the reference sampler, in one run:
 
 * ``net projection``: y-strata by rank, then x-halves split level by level between the two
   points of each sibling y-stratum pair (smaller x to the left). Any set becomes a
-  (0, m, 2)-net; a net is left unchanged. Fine digits below 1/n are kept.
+  (0, m, 2)-net; a net is left unchanged. Fine digits below 1/n are kept. Global: points
+  move across many grid cells.
+* ``cell-preserving net repair`` (:mod:`diffsampler_rt.structure`, what the runtime does for
+  sobol_owen): the same net condition restored inside each column and row of grid cells, so
+  no point leaves its cell.
 * ``1-d stratification``: each coordinate's 1/n stratum becomes its rank (keeps every point
   in its grid cell for a stratified set).
 * ``renoise-denoise``: after sampling, noise the set to a small timestep t and denoise it
@@ -34,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 import diffsampler_rt  # noqa: E402
 from benchmarks.common import model_hash  # noqa: E402
 from diffsampler_rt.grid import decode  # noqa: E402
+from diffsampler_rt.structure import impose_dyadic_net  # noqa: E402
 from diffsampler_rt.schedule import timesteps  # noqa: E402
 from diffsampler_rt.solvers import solve  # noqa: E402
 from trainer.samplers import sample  # noqa: E402
@@ -121,17 +126,21 @@ def main() -> None:
              f"independent batch B ({S} sets) for the noise floor. Relative differences of the "
              "means; *mean shift*: how far the fix moved the points on average, in grid "
              "cells (toroidal).", ""]
-    for name, fix, fn in (("sobol_owen", "net projection", project_to_net),
-                          ("ldbn", "1-d stratification", stratify_1d)):
-        gen = diffsampler_rt.generate(name, n, S, seed=5)
+    for name, fixes in (("sobol_owen", (("net projection", project_to_net),
+                                        ("cell-preserving net repair (runtime)",
+                                         lambda g: impose_dyadic_net(g, k)))),
+                        ("ldbn", (("1-d stratification", stratify_1d),))):
+        # the network's sets as decoded, without the structure a card may ask for
+        gen = diffsampler_rt.generate(name, n, S, seed=5, structure=False)
         ref, floor = sample(name, n, count=4 * S, seed=100), sample(name, n, count=S, seed=200)
         spec = radial_spectrum(ref)
-        fixed = fn(gen)
-        shift = f"{k * _torus_shift(fixed, gen).mean():.2f}"
-        lines += [f"## {name}, n = {n}: {fix}", "", head,
-                  row("reference B (floor)", floor, ref, spec),
-                  row("model", gen, ref, spec),
-                  row(f"model + {fix}", fixed, ref, spec, shift), ""]
+        lines += [f"## {name}, n = {n}: {' vs '.join(f for f, _ in fixes)}", "", head,
+                  row("reference B (floor)", floor, ref, spec), row("model", gen, ref, spec)]
+        for fix, fn in fixes:
+            fixed = fn(gen)
+            lines.append(row(f"model + {fix}", fixed, ref, spec,
+                             f"{k * _torus_shift(fixed, gen).mean():.2f}"))
+        lines.append("")
         print(f"{name} done", flush=True)
     name = "poisson_disk"
     m = diffsampler_rt.load(name)

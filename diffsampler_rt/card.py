@@ -11,6 +11,7 @@ from typing import Any, Mapping
 from .errors import ModelFormatError
 from .schedule import betas
 from .solvers import SOLVERS
+from .structure import STRUCTURES
 
 FORMAT_KEY = "diffsampler.format"
 CARD_KEY = "diffsampler.card"
@@ -53,6 +54,13 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if card.get("default_solver", "ddim") not in SOLVERS:
         raise ModelFormatError(f"{source}: unknown default solver {card['default_solver']!r}")
     card.setdefault("default_solver", "ddim")  # cards written before the field existed
+    structure = card.get("structure")
+    if structure is not None and structure not in STRUCTURES:
+        raise ModelFormatError(f"{source}: unknown structure {structure!r}; this runtime "
+                               f"knows {list(STRUCTURES)}")
+    if structure is not None and card["embedding"] != "stratified":
+        raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
+                               f"embedding, the card says {card['embedding']!r}")
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:

@@ -19,8 +19,8 @@ def cell_centres(k: int) -> np.ndarray:
     return np.stack([cx.ravel(), cy.ravel()], axis=1)
 
 
-def _cell_bounds(k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest and largest float64 x with floor(x * k) == cell index, per cell."""
+def strip_bounds(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest float64 x with floor(x * k) == i, for each of the k strips i."""
     col = np.arange(k, dtype=np.float64)
     lo, hi = col / k, np.nextafter((col + 1) / k, 0.0)
     for _ in range(4):  # a few ulps of rounding in x * k at most
@@ -46,7 +46,7 @@ def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
     x = (grid[..., 0, :, :] + centre[None, :]) / k
     y = (grid[..., 1, :, :] + centre[:, None]) / k
     if stratified:
-        lo, hi = _cell_bounds(k)
+        lo, hi = strip_bounds(k)
         x = np.clip(x, lo[None, :], hi[None, :])
         y = np.clip(y, lo[:, None], hi[:, None])
     pts = np.stack([x, y], axis=-1).reshape(grid.shape[:-3] + (k * k, 2))

@@ -17,6 +17,7 @@ from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, solve
+from .structure import applies, impose_dyadic_net
 
 MODELS_DIR = Path(__file__).parent / "models"
 #: points evaluated per onnxruntime call when generating many sets
@@ -97,7 +98,8 @@ class Model:
 
     def generate(self, n: int, count: int | None = None, *,
                  seed: int | np.random.Generator | None = None, steps: int | None = None,
-                 solver: str | None = None, progress: bool = False) -> np.ndarray:
+                 solver: str | None = None, progress: bool = False,
+                 structure: bool = True) -> np.ndarray:
         """Generate point sets of ``n`` points with this model.
 
         Parameters
@@ -118,6 +120,11 @@ class Model:
             Default: the model card's ``default_solver``.
         progress : bool
             Show a progress bar on stderr.
+        structure : bool
+            Impose the structure the model card names, if any (``sobol_owen``: every set
+            of 2^m points, k a power of two, made a (0, m, 2)-net without moving any point
+            out of its grid cell; see :mod:`diffsampler_rt.structure`). ``False`` returns the
+            network's sets as decoded.
 
         Returns
         -------
@@ -129,14 +136,14 @@ class Model:
         out = np.empty((c, k * k, 2))
         start = 0
         for block in self.iter_sets(n, c, seed=seed, steps=steps, solver=solver,
-                                    progress=progress):
+                                    progress=progress, structure=structure):
             out[start:start + len(block)] = block
             start += len(block)
         return out[0] if count is None else out
 
     def iter_sets(self, n: int, count: int, *, batch: int | None = None,
                   seed: int | np.random.Generator | None = None, steps: int | None = None,
-                  solver: str | None = None, progress: bool = False):
+                  solver: str | None = None, progress: bool = False, structure: bool = True):
         """Generate ``count`` sets lazily, ``batch`` sets at a time (a generator).
 
         For counts too large to hold at once: each yielded block has shape
@@ -170,10 +177,12 @@ class Model:
                 raise ValueError(f"batch must be >= 1, got {per_batch}")
         rng = _validate.rng(seed)
         # validated now; the sets are made as the caller iterates
-        return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress)
+        imposed = bool(structure) and applies(self.card, k)
+        return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
+                            imposed)
 
     def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
-                ts: np.ndarray, solver: str, progress: bool):
+                ts: np.ndarray, solver: str, progress: bool, imposed: bool):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
@@ -187,7 +196,8 @@ class Model:
             x = solve(solver, self.denoise, x, self.alpha_bar, ts, noise)
             grid = x / float(self.card["offset_scale"])
             bar.update(len(sub))
-            yield decode(grid, stratified=self.card["embedding"] == "stratified")
+            pts = decode(grid, stratified=self.card["embedding"] == "stratified")
+            yield impose_dyadic_net(pts, k) if imposed else pts
 
 
 def session_options(threads: int | None = None) -> "ort.SessionOptions":
@@ -227,7 +237,8 @@ def load(model: str | os.PathLike | Model) -> Model:
 
 def generate(model: str | os.PathLike | Model, n: int, count: int | None = None, *,
              seed: int | np.random.Generator | None = None, steps: int | None = None,
-             solver: str | None = None, progress: bool = False) -> np.ndarray:
+             solver: str | None = None, progress: bool = False,
+             structure: bool = True) -> np.ndarray:
     """Generate ``count`` point sets of ``n`` points from a learned sampler.
 
     Parameters
@@ -235,7 +246,7 @@ def generate(model: str | os.PathLike | Model, n: int, count: int | None = None,
     model : str, path-like or Model
         A bundled model name (``diffsampler_rt.list_models()``) or a path to an ``.onnx``
         file exported by diffsampler.
-    n, count, seed, steps, solver, progress
+    n, count, seed, steps, solver, progress, structure
         See :meth:`Model.generate`.
 
     Returns
@@ -251,4 +262,4 @@ def generate(model: str | os.PathLike | Model, n: int, count: int | None = None,
     ((576, 2), True)
     """
     return load(model).generate(n, count, seed=seed, steps=steps, solver=solver,
-                                progress=progress)
+                                progress=progress, structure=structure)

@@ -1,7 +1,7 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
-``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]``: change the sampling
-defaults in an exported model's card.
+``python -m export set-defaults MODEL.onnx [--solver S] [--steps N] [--structure dyadic_net|none]``:
+change the sampling defaults in an exported model's card.
 
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
@@ -15,23 +15,27 @@ from pathlib import Path
 
 def set_defaults_main(argv: list[str]) -> int:
     from diffsampler_rt.solvers import SOLVERS
+    from diffsampler_rt.structure import STRUCTURES
     p = argparse.ArgumentParser(prog="python -m export set-defaults",
                                 description="change the sampling defaults of a model card")
     p.add_argument("model", type=Path)
     p.add_argument("--solver", choices=list(SOLVERS))
     p.add_argument("--steps", type=int)
+    p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
+                   help="net structure imposed on generated sets (none: remove)")
     args = p.parse_args(argv)
     if not args.model.exists():
         print(f"error: model {args.model} not found", file=sys.stderr)
         return 2
     from .defaults import set_defaults
     try:
-        card = set_defaults(args.model, solver=args.solver, steps=args.steps)
+        card = set_defaults(args.model, solver=args.solver, steps=args.steps,
+                            structure=args.structure)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
-          f"{card['default_steps']} steps")
+          f"{card['default_steps']} steps, structure {card.get('structure', 'none')}")
     return 0
 
 

@@ -1,8 +1,9 @@
-"""Change the sampling defaults (solver, steps) in an exported model's card.
+"""Change the sampling defaults (solver, steps, structure) in an exported model's card.
 
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
-``steps``; they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after
-training, so they are edited in place rather than baked in at export.
+``steps``, and the structure it imposes on the decoded sets (``diffsampler_rt.structure``);
+they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
+they are edited in place rather than baked in at export.
 """
 from __future__ import annotations
 
@@ -13,11 +14,16 @@ import onnx
 
 from diffsampler_rt.card import CARD_KEY
 from diffsampler_rt.solvers import SOLVERS
+from diffsampler_rt.structure import STRUCTURES
 
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
-                 steps: int | None = None) -> dict:
-    """Rewrite ``default_solver`` / ``default_steps`` of the card in ``path``; returns the card."""
+                 steps: int | None = None, structure: str | None = None) -> dict:
+    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` of the card in ``path``
+    (``structure="none"`` removes it); returns the card."""
+    if structure is not None and structure != "none" and structure not in STRUCTURES:
+        raise ValueError(f"unknown structure {structure!r}; choose one of "
+                         f"{list(STRUCTURES) + ['none']}")
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -34,6 +40,13 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         card["default_solver"] = solver
     if steps is not None:
         card["default_steps"] = steps
+    if structure == "none":
+        card.pop("structure", None)
+    elif structure is not None:
+        if card["embedding"] != "stratified":
+            raise ValueError(f"structure {structure!r} needs a stratified embedding; "
+                             f"{path} has {card['embedding']!r}")
+        card["structure"] = structure
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
     onnx.save(model, str(path))
     return card

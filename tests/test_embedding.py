@@ -74,9 +74,9 @@ def test_decode_stratified_keeps_one_point_per_cell():
     assert np.all(pts >= 0) and np.all(pts < 1)
 
 
-def test_cell_bounds_respect_floor_convention():
-    from diffsampler_rt.grid import _cell_bounds
+def test_strip_bounds_respect_floor_convention():
+    from diffsampler_rt.grid import strip_bounds
     for k in range(4, 700):
-        lo, hi = _cell_bounds(k)
+        lo, hi = strip_bounds(k)
         np.testing.assert_array_equal(np.floor(lo * k), np.arange(k))
         np.testing.assert_array_equal(np.floor(hi * k), np.arange(k))

@@ -1,0 +1,86 @@
+"""The (0, m, 2)-net structure the runtime imposes on decoded sets (diffsampler_rt.structure)."""
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, structure
+from diffsampler_rt.structure import impose_dyadic_net
+from trainer.stats import empty_elementary_fraction, t_value
+
+
+def jittered(k: int, count: int, seed: int = 0) -> np.ndarray:
+    """One uniform point per cell, row-major cell order (what a stratified decode gives)."""
+    cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
+    return (cells + np.random.default_rng(seed).random((count, k * k, 2))) / k
+
+
+@pytest.mark.parametrize("k", [2, 4, 8, 32])
+def test_imposed_sets_are_nets_and_keep_their_cells(k):
+    pts = jittered(k, 6)
+    if k >= 8:  # jittered sets are far from nets
+        assert empty_elementary_fraction(pts).mean() > 0.1
+    out = impose_dyadic_net(pts, k)
+    assert out.shape == pts.shape and out.dtype == np.float64
+    assert np.all((out >= 0) & (out < 1))
+    assert np.all(t_value(out) == 0)  # every elementary interval holds exactly one point
+    np.testing.assert_array_equal(np.floor(out * k), np.floor(pts * k))
+    # moves stay inside the cell: at most one cell width, mostly far less
+    assert np.abs(out - pts).max() < 1 / k and np.abs(out - pts).mean() < 0.25 / k
+
+
+def test_nets_are_left_unchanged():
+    from trainer.samplers import sample
+    ref = sample("sobol_owen", 256, count=4, seed=3)
+    k = 16
+    # the runtime's sets come in row-major cell order
+    cell = (np.floor(ref[..., 1] * k) * k + np.floor(ref[..., 0] * k)).astype(int)
+    ordered = np.take_along_axis(ref, np.argsort(cell, axis=1)[..., None], axis=1)
+    np.testing.assert_array_equal(impose_dyadic_net(ordered, k), ordered)
+    out = impose_dyadic_net(jittered(k, 2), k)
+    np.testing.assert_array_equal(impose_dyadic_net(out, k), out)  # idempotent
+
+
+def test_bad_sides_are_refused():
+    with pytest.raises(ValueError, match="power-of-two grid side, got k=24"):
+        impose_dyadic_net(jittered(24, 1), 24)
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 64, 2\)"):
+        impose_dyadic_net(np.zeros((1, 60, 2)), 8)
+
+
+def test_card_structure_is_applied_at_power_of_two_sides(tiny_onnx, tmp_path):
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=5) for n in (64, 144)}
+    card = set_defaults(path, structure="dyadic_net")
+    assert card["structure"] == "dyadic_net"
+    m = diffsampler_rt.Model(path)
+    net = m.generate(64, 3, seed=5)
+    assert np.all(t_value(net) == 0) and not np.all(t_value(plain[64]) == 0)
+    np.testing.assert_array_equal(net, impose_dyadic_net(plain[64], 8))
+    np.testing.assert_array_equal(m.generate(64, 3, seed=5, structure=False), plain[64])
+    blocks = np.concatenate(list(m.iter_sets(64, 3, batch=2, seed=5)))
+    np.testing.assert_array_equal(blocks, net)
+    np.testing.assert_array_equal(m.generate(144, 3, seed=5), plain[144])  # k = 12: no net
+    assert "structure" not in set_defaults(path, structure="none")
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(64, 3, seed=5), plain[64])
+    with pytest.raises(ValueError, match="unknown structure 'lattice'"):
+        set_defaults(path, structure="lattice")
+
+
+def test_card_structure_is_validated():
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    strat = dict(diffsampler_rt.load("sobol_owen").card)
+    with pytest.raises(ModelFormatError, match="unknown structure 'grid'"):
+        parse_card({CARD_KEY: json.dumps({**strat, "structure": "grid"})}, "m")
+    ot = dict(diffsampler_rt.load("rank1").card)
+    with pytest.raises(ModelFormatError, match="needs the stratified embedding"):
+        parse_card({CARD_KEY: json.dumps({**ot, "structure": "dyadic_net"})}, "m")
+
+
+def test_docstring_examples():
+    assert doctest.testmod(structure).failed == 0
