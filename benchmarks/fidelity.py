@@ -148,15 +148,18 @@ def evaluate(pool, name: str, a) -> dict:
            "date": dt.date.today().isoformat()}
     for n in a.sizes:
         count, scount, ref_a, ref_b, ref_per_set, stats_a, stats_b = reference(pool, sampler, n, a)
+        # generation is cheap: more generated than reference sets (--gen-sets) cuts the
+        # generated side's noise, the floor (B vs A) stays the reference's
+        gcount = max(scount, a.gen_sets)
         t = time.perf_counter()
-        gen = model.generate(n, scount, seed=a.seed)  # set i does not depend on the count
-        gen_per_set = (time.perf_counter() - t) / scount
+        gen = model.generate(n, gcount, seed=a.seed)  # set i does not depend on the count
+        gen_per_set = (time.perf_counter() - t) / gcount
         gu = unwarp(gen) if unwarp else gen
         ru_a, ru_b = (unwarp(ref_a), unwarp(ref_b)) if unwarp else (ref_a, ref_b)
-        gstats = set_stats(pool, gu[:count])
+        gstats = set_stats(pool, gu[:max(count, a.gen_sets)])
         sg, sa, sb = (radial_spectrum(p)[1] for p in (gu, ru_a, ru_b))
-        gen, ref_a = gen[:count], ref_a[:count]
-        row = {"count": count, "spectrum_count": scount,
+        gen, ref_a = gen[:max(count, a.gen_sets)], ref_a[:count]
+        row = {"count": count, "spectrum_count": scount, "gen_count": len(gen),
                "gen_ms": 1000 * gen_per_set, "ref_ms": 1000 * ref_per_set,
                "mae": spectrum_mae(sg, sa), "floor": spectrum_mae(sb, sa),
                "spec_gen": sg, "spec_ref": sa, "example_gen": gen[0], "example_ref": ref_a[0]}
@@ -187,7 +190,7 @@ def evaluate(pool, name: str, a) -> dict:
 
 def settings(a) -> dict:
     return {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
-            "spectrum_sets": a.spectrum_sets, "seed": a.seed}
+            "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
 
 
 def _jsonable(v):
@@ -227,6 +230,12 @@ def kept_results(out: Path, models: list[str]) -> tuple[list[dict], list[str]]:
                 row[k] = np.asarray(row[k])
         found.append(r)
     return found, missing
+
+
+def _gen(row: dict) -> str:
+    """", gen 256" where more sets were generated than drawn from the reference."""
+    g = row.get("gen_count", row["count"])
+    return f", gen {g}" if g > max(row["count"], row["spectrum_count"]) else ""
 
 
 def _fmt_rel(d: dict, tol: float) -> str:
@@ -277,7 +286,8 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
     runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results})
     how = "; ".join(
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
-        f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}` on {d}"
+        f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
+        + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "") + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
@@ -286,7 +296,9 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         "Generated sets (default solver and steps of each model card) and reference sets are "
         "compared in the same run; *sets* is the number per side. Reference batch A is "
         "compared with the model; batch B, drawn independently, gives the **noise floor**: "
-        "the same figure between B and A, shown in brackets. Slow reference samplers (the "
+        "the same figure between B and A, shown in brackets; with `--gen-sets G` at least G "
+        "sets are generated (shown as *gen G*), which cuts the generated side's noise but "
+        "not the floor. Slow reference samplers (the "
         "iterative optimisers) use fewer sets at sizes other than 1024; fast samplers with tight "
         "spectrum targets use more sets at n = 1024 for the spectrum (the per-set statistics use the first ones).",
         "",
@@ -317,7 +329,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         if seed_net and row["mae"] > 2 * tgt:
             seed_net += " (**ours worse**)"
         sets = (f"{row['count']}" if row["spectrum_count"] == row["count"]
-                else f"{row['count']} ({row['spectrum_count']} spectrum)")
+                else f"{row['count']} ({row['spectrum_count']} spectrum)") + _gen(row)
         lines.append(f"| {r['name']} | {sets} | {row['mae']:.4f} | {row['floor']:.4f} | "
                      f"{tgt if tgt is not None else ''} | {met} | {seed} | {seed_net} | "
                      + " | ".join(_fmt_rel(row[k], TOL_MIND if k == "min_distance" else TOL_MEAN)
@@ -342,7 +354,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
             if "chi2" in row:
                 extra = f"density chi2 {row['chi2'][0]:.0f} (ref {row['chi2'][1]:.0f}, ideal 63)"
             sets = (f"{row['count']} ({row['spectrum_count']} for the spectrum)"
-                    if row["spectrum_count"] != row["count"] else str(row["count"]))
+                    if row["spectrum_count"] != row["count"] else str(row["count"])) + _gen(row)
             lines.append(f"| {n} | {sets} | {row['mae']:.4f} ({row['floor']:.4f}) | "
                          + " | ".join(_fmt_rel(row[k], TOL_MIND if k == "min_distance" else TOL_MEAN)
                                       for k in STATS)
@@ -400,6 +412,9 @@ def main() -> None:
     p.add_argument("--slow-4096", type=int, default=16, help="sets per side, slow samplers, n=4096")
     p.add_argument("--spectrum-sets", type=int, default=1024,
                    help="sets per side for the spectrum at n = 1024 (fast samplers)")
+    p.add_argument("--gen-sets", type=int, default=0,
+                   help="generate at least this many sets per size (default: as many as the "
+                        "reference side)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
