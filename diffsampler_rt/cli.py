@@ -1,6 +1,7 @@
 """``diffsampler``: generate point sets from the command line.
 
-    diffsampler generate MODEL N [--count C] [--seed S] [--steps T] [--format txt|npy|csv] [-o FILE]
+    diffsampler generate MODEL N [--count C] [--seed S] [--steps T] [--no-structure]
+                             [--format txt|npy|csv] [-o FILE]
     diffsampler plot MODEL N [--count C] [--seed S] -o FIG.png   (or: plot POINTS.npy -o FIG.png)
     diffsampler list
     diffsampler info MODEL
@@ -54,7 +55,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     model = load(args.model)
     show = args.count is not None and args.count > 1 and sys.stderr.isatty()
     pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,
-                         solver=args.solver, progress=show)
+                         solver=args.solver, progress=show, structure=not args.no_structure)
     if args.output is None:
         _write(pts, fmt, sys.stdout.buffer)
         sys.stdout.flush()
@@ -114,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--steps", type=int, default=None, help="denoising steps")
     g.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="default: the model card's")
+    g.add_argument("--no-structure", action="store_true",
+                   help="do not impose the structure the model card names (sobol_owen's net)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")

@@ -72,3 +72,14 @@ def test_closed_pipe_is_not_an_error():
     proc.stdout.close()
     err = proc.stderr.read()
     assert proc.wait(timeout=120) == 0 and err == b""
+
+
+def test_generate_no_structure(tmp_path):
+    import diffsampler_rt
+    for flag, structure in (([], True), (["--no-structure"], False)):
+        out = tmp_path / f"s{structure}.npy"
+        assert main(["generate", "sobol_owen", "64", "--count", "2", "--seed", "4", "--steps",
+                     "3", "-o", str(out)] + flag) == 0
+        ref = diffsampler_rt.generate("sobol_owen", 64, count=2, seed=4, steps=3,
+                                      structure=structure)
+        np.testing.assert_array_equal(np.load(out), ref)
