@@ -44,7 +44,8 @@ def _dyadic_slots(frac: np.ndarray) -> np.ndarray:
         f, p = frac.reshape(shape), prefix.reshape(shape)
         order = np.argsort(p, axis=-1, kind="stable")  # each half holds every prefix once
         fs = np.take_along_axis(f, order, axis=-1)
-        upper = (fs[..., 1, :] > fs[..., 0, :]).astype(np.int64)  # bit of the second half's
+        # of each pair, the point in the second half takes bit 1 if its offset is larger
+        upper = (fs[..., 1, :] > fs[..., 0, :]).astype(np.int64)
         bits = np.empty_like(order)
         np.put_along_axis(bits, order, np.stack([1 - upper, upper], axis=-2), axis=-1)
         prefix = (2 * p + bits).reshape(frac.shape)
@@ -89,6 +90,12 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
     if pts.shape[-2:] != (k * k, 2):
         raise ValueError(f"points must have shape (..., {k * k}, 2), got {pts.shape}")
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
+    cells = np.floor(grid * k)
+    if not (np.array_equal(cells[..., 0], np.broadcast_to(np.arange(k), cells.shape[:-1]))
+            and np.array_equal(cells[..., 1], np.broadcast_to(np.arange(k)[:, None],
+                                                              cells.shape[:-1]))):
+        raise ValueError("points must lie one per grid cell in row-major cell order, as "
+                         "a stratified decode gives them")
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns
     out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k).swapaxes(1, 2)

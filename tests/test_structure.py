@@ -49,6 +49,8 @@ def test_bad_sides_are_refused():
         impose_dyadic_net(jittered(24, 1), 24)
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 64, 2\)"):
         impose_dyadic_net(np.zeros((1, 60, 2)), 8)
+    with pytest.raises(ValueError, match="one per grid cell in row-major cell order"):
+        impose_dyadic_net(jittered(8, 1)[:, ::-1], 8)
 
 
 def test_card_structure_is_applied_at_power_of_two_sides(tiny_onnx, tmp_path):
