@@ -156,9 +156,10 @@ def evaluate(pool, name: str, a) -> dict:
         gen_per_set = (time.perf_counter() - t) / gcount
         gu = unwarp(gen) if unwarp else gen
         ru_a, ru_b = (unwarp(ref_a), unwarp(ref_b)) if unwarp else (ref_a, ref_b)
-        gstats = set_stats(pool, gu[:max(count, a.gen_sets)])
+        kept = max(count, a.gen_sets)  # generated sets whose per-set statistics are kept
+        gstats = set_stats(pool, gu[:kept])
         sg, sa, sb = (radial_spectrum(p)[1] for p in (gu, ru_a, ru_b))
-        gen, ref_a = gen[:max(count, a.gen_sets)], ref_a[:count]
+        gen, ref_a = gen[:kept], ref_a[:count]
         row = {"count": count, "spectrum_count": scount, "gen_count": len(gen),
                "gen_ms": 1000 * gen_per_set, "ref_ms": 1000 * ref_per_set,
                "mae": spectrum_mae(sg, sa), "floor": spectrum_mae(sb, sa),

@@ -12,18 +12,14 @@ from pathlib import Path
 
 import onnx
 
-from diffsampler_rt.card import CARD_KEY
+from diffsampler_rt.card import CARD_KEY, parse_card
 from diffsampler_rt.solvers import SOLVERS
-from diffsampler_rt.structure import STRUCTURES
 
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` of the card in ``path``
     (``structure="none"`` removes it); returns the card."""
-    if structure is not None and structure != "none" and structure not in STRUCTURES:
-        raise ValueError(f"unknown structure {structure!r}; choose one of "
-                         f"{list(STRUCTURES) + ['none']}")
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -43,10 +39,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     if structure == "none":
         card.pop("structure", None)
     elif structure is not None:
-        if card["embedding"] != "stratified":
-            raise ValueError(f"structure {structure!r} needs a stratified embedding; "
-                             f"{path} has {card['embedding']!r}")
         card["structure"] = structure
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
+    # the runtime's own card checks (known structure, stratified embedding), before saving;
+    # ModelFormatError is a ValueError
+    parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
     onnx.save(model, str(path))
     return card
