@@ -280,7 +280,9 @@ def model_card_text(c: dict) -> str:
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
             + ("; the (0, m, 2)-net structure imposed on the decoded sets at power-of-two "
                "grid sides (diffsampler_rt.structure)" if c.get("structure") == "dyadic_net"
-               else "") + ".")
+               else "")
+            + (f"; pairs closer than {c['min_spacing']:g} / sqrt(n) pushed apart "
+               "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 
 
 def report(results: list[dict], missing: list[str], out: Path) -> None:

@@ -24,6 +24,11 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
             "min_side": int}
 
 
+#: no set of n points in the unit square keeps them all sqrt(2 / sqrt(3) / n) apart or more
+#: (the hexagonal packing); a card asking for more could never be satisfied
+MAX_SPACING = 1.07
+
+
 def describe_devices(devices: list[str] | None) -> str:
     """"CPU", "GPU" or "GPU and CPU" for a list of torch device types (none given: CPU)."""
     names = {"cpu": "CPU", "cuda": "GPU"}
@@ -61,6 +66,11 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if structure is not None and card["embedding"] != "stratified":
         raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
                                f"embedding, the card says {card['embedding']!r}")
+    spacing = card.get("min_spacing")
+    if spacing is not None and (not isinstance(spacing, (int, float)) or isinstance(spacing, bool)
+                                or not 0 < spacing < MAX_SPACING):
+        raise ModelFormatError(f"{source}: min_spacing must be a number in (0, {MAX_SPACING}), "
+                               f"got {spacing!r}")
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:

@@ -17,6 +17,7 @@ from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, solve
+from .spacing import enforce_min_spacing, radius
 from .structure import applies, impose_dyadic_net
 
 MODELS_DIR = Path(__file__).parent / "models"
@@ -121,10 +122,12 @@ class Model:
         progress : bool
             Show a progress bar on stderr.
         structure : bool
-            Impose the structure the model card names, if any (``sobol_owen``: every set
-            of 2^m points, k a power of two, made a (0, m, 2)-net without moving any point
-            out of its grid cell; see :mod:`diffsampler_rt.structure`). ``False`` returns the
-            network's sets as decoded.
+            Restore what the sampler has by construction, as the model card says:
+            ``"structure": "dyadic_net"`` (sobol_owen: every set of 2^m points, k a power
+            of two, made a (0, m, 2)-net without moving any point out of its grid cell;
+            :mod:`diffsampler_rt.structure`) and ``"min_spacing": c`` (blue noise: pairs
+            closer than c / sqrt(n) pushed apart, every other point kept;
+            :mod:`diffsampler_rt.spacing`). ``False`` returns the network's sets as decoded.
 
         Returns
         -------
@@ -178,11 +181,13 @@ class Model:
         rng = _validate.rng(seed)
         # validated now; the sets are made as the caller iterates
         imposed = bool(structure) and applies(self.card, k)
+        spacing = radius(self.card, k * k) if structure else None
         return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed)
+                            imposed, spacing)
 
     def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
-                ts: np.ndarray, solver: str, progress: bool, imposed: bool):
+                ts: np.ndarray, solver: str, progress: bool, imposed: bool,
+                spacing: float | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
@@ -197,7 +202,9 @@ class Model:
             grid = x / float(self.card["offset_scale"])
             bar.update(len(sub))
             pts = decode(grid, stratified=self.card["embedding"] == "stratified")
-            yield impose_dyadic_net(pts, k) if imposed else pts
+            if imposed:
+                pts = impose_dyadic_net(pts, k)
+            yield pts if spacing is None else enforce_min_spacing(pts, spacing)
 
 
 def session_options(threads: int | None = None) -> "ort.SessionOptions":

@@ -1,7 +1,7 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
-``python -m export set-defaults MODEL.onnx [--solver S] [--steps N] [--structure dyadic_net|none]``:
-change the sampling defaults in an exported model's card.
+``python -m export set-defaults MODEL.onnx [--solver S] [--steps N] [--structure dyadic_net|none]
+[--min-spacing C|none]``: change the sampling defaults in an exported model's card.
 
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
@@ -23,19 +23,31 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--steps", type=int)
     p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
                    help="net structure imposed on generated sets (none: remove)")
+    p.add_argument("--min-spacing", metavar="C|none",
+                   help="push apart pairs closer than C / sqrt(n) (C from `python -m trainer "
+                        "spacing CONFIG`; none: remove)")
     args = p.parse_args(argv)
+    spacing = args.min_spacing
+    if spacing is not None and spacing != "none":
+        try:
+            spacing = float(spacing)
+        except ValueError:
+            print(f"error: --min-spacing must be a number or none, got {spacing!r}",
+                  file=sys.stderr)
+            return 2
     if not args.model.exists():
         print(f"error: model {args.model} not found", file=sys.stderr)
         return 2
     from .defaults import set_defaults
     try:
         card = set_defaults(args.model, solver=args.solver, steps=args.steps,
-                            structure=args.structure)
+                            structure=args.structure, min_spacing=spacing)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
-          f"{card['default_steps']} steps, structure {card.get('structure', 'none')}")
+          f"{card['default_steps']} steps, structure {card.get('structure', 'none')}, "
+          f"min spacing {card.get('min_spacing', 'none')}")
     return 0
 
 

@@ -1,7 +1,9 @@
-"""Change the sampling defaults (solver, steps, structure) in an exported model's card.
+"""Change the sampling defaults (solver, steps, structure, spacing) in an exported model's card.
 
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
-``steps``, and the structure it imposes on the decoded sets (``diffsampler_rt.structure``);
+``steps``, and what it restores on the decoded sets: a net structure
+(``diffsampler_rt.structure``) or a minimum spacing (``diffsampler_rt.spacing``; the
+coefficient comes from the training sets, ``python -m trainer spacing CONFIG``);
 they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
 they are edited in place rather than baked in at export.
 """
@@ -17,9 +19,10 @@ from diffsampler_rt.solvers import SOLVERS
 
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
-                 steps: int | None = None, structure: str | None = None) -> dict:
-    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` of the card in ``path``
-    (``structure="none"`` removes it); returns the card."""
+                 steps: int | None = None, structure: str | None = None,
+                 min_spacing: float | str | None = None) -> dict:
+    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` / ``min_spacing`` of
+    the card in ``path`` (``"none"`` removes a structure or spacing); returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -40,8 +43,13 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         card.pop("structure", None)
     elif structure is not None:
         card["structure"] = structure
+    if min_spacing == "none":
+        card.pop("min_spacing", None)
+    elif min_spacing is not None:
+        card["min_spacing"] = min_spacing
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
-    # the runtime's own card checks (known structure, stratified embedding), before saving;
+    # the runtime's own card checks (known structure, stratified embedding, spacing range),
+    # before saving;
     # ModelFormatError is a ValueError
     parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
     onnx.save(model, str(path))

@@ -21,6 +21,8 @@ except ImportError:
 import diffsampler_rt
 pts = diffsampler_rt.generate('rank1', 576, seed=0, steps=5)
 assert pts.shape == (576, 2), pts.shape
+pts = diffsampler_rt.generate('poisson_disk_fast', 256, seed=0)  # with its minimum spacing
+assert pts.shape == (256, 2), pts.shape
 pts = diffsampler_rt.generate('sobol_owen', 625, count=2, seed=0, steps=5)
 assert pts.shape == (2, 625, 2)
 print(pts.shape, 'torch' in sys.modules, 'scipy' in sys.modules)

@@ -1,5 +1,6 @@
-"""Command line: ``python -m trainer train|prepare|distil CONFIG``, ``python -m trainer sample NAME N``
-and ``python -m trainer optimise CHECKPOINT N`` (property optimisation of the input noise)."""
+"""Command line: ``python -m trainer train|prepare|distil|spacing CONFIG``, ``python -m trainer
+sample NAME N`` and ``python -m trainer optimise CHECKPOINT N`` (property optimisation of the
+input noise)."""
 from __future__ import annotations
 
 import argparse
@@ -54,6 +55,26 @@ def _optimise(args: argparse.Namespace) -> None:
                          + ",".join(repr(v) for v in row["per_set"]) + "\n")
 
 
+def _spacing(args: argparse.Namespace) -> None:
+    from diffsampler_rt.grid import decode
+
+    from .config import TrainConfig
+    from .data import Batches
+    from .stats import spacing_coefficient
+    cfg = TrainConfig.load(args.config)
+    if not any(cfg.data.pool_sizes):
+        raise ValueError(f"{args.config} trains on fresh sets (no pool); nothing to measure")
+    pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(), workers=args.workers).pools
+    for k, pool in sorted(pools.items()):
+        # the pool's own sets only: its shifted copies are translated on the torus, which
+        # changes Euclidean distances across the border
+        grid = np.asarray(pool[::cfg.data.shifts], dtype=np.float64)
+        pts = decode(grid, stratified=cfg.data.embedding == "stratified")
+        print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient "
+              f"{spacing_coefficient(pts, args.percentile):.4f} "
+              f"({args.percentile:g}th percentile of the smallest distance times sqrt(n))")
+
+
 def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:
     """Options shared by ``train`` and ``distil`` (both resumable step loops)."""
     parser.add_argument("--run-dir", type=Path, help=run_dir_help)
@@ -83,6 +104,14 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("config", type=Path)
     r.add_argument("--workers", type=int, default=1,
                    help="processes for the slow samplers (same pools for any number)")
+
+    c = sub.add_parser("spacing", help="spacing coefficient of a config's training sets "
+                       "(for `python -m export set-defaults --min-spacing`)")
+    c.add_argument("config", type=Path)
+    c.add_argument("--percentile", type=float, default=5.0,
+                   help="share of the sets whose smallest distance is below the radius")
+    c.add_argument("--workers", type=int, default=1,
+                   help="processes for the slow samplers, if the pools are not cached")
 
     s = sub.add_parser("sample", help="draw point sets from a reference sampler")
     s.add_argument("name")
@@ -134,6 +163,8 @@ def main(argv: list[str] | None = None) -> int:
                             workers=args.workers).pools
             for k, pool in pools.items():
                 print(f"{cfg.name}: k={k} pool {pool.shape}")
+        elif args.cmd == "spacing":
+            _spacing(args)
         elif args.cmd == "optimise":
             _optimise(args)
         else:

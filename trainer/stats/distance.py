@@ -17,6 +17,19 @@ def min_distance(points: np.ndarray, toroidal: bool = False) -> np.ndarray:
     return out.reshape(pts.shape[:-2])
 
 
+def spacing_coefficient(points: np.ndarray, percentile: float = 5.0) -> float:
+    """The ``percentile`` of the smallest distance of each set (..., n, 2), times sqrt(n).
+
+    The coefficient c of the spacing radius c / sqrt(n) a model card asks the runtime to
+    keep (``"min_spacing"``, :mod:`diffsampler_rt.spacing`): a radius that this share of the
+    sampler's sets fall short of.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if not 0 <= percentile <= 100:
+        raise ValueError(f"percentile must be in [0, 100], got {percentile}")
+    return float(np.percentile(min_distance(pts), percentile) * np.sqrt(pts.shape[-2]))
+
+
 def pair_correlation(points: np.ndarray, radii: np.ndarray | None = None,
                      bandwidth: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """Pair correlation function on the unit torus, averaged over sets.

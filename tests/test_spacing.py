@@ -1,0 +1,173 @@
+"""The minimum spacing the runtime restores on decoded sets (diffsampler_rt.spacing)."""
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, spacing
+from diffsampler_rt.spacing import close_pairs, enforce_min_spacing
+from trainer.stats import min_distance, spacing_coefficient
+
+
+def brute_pairs(p: np.ndarray, r: float) -> set:
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    i, j = np.nonzero(np.triu(d < r, 1))
+    return set(zip(i.tolist(), j.tolist()))
+
+
+@pytest.mark.parametrize("m, scale", [(1, 0.5), (7, 0.5), (300, 0.6), (2000, 1.5)])
+def test_close_pairs_match_brute_force(m, scale):
+    p = np.random.default_rng(m).random((m, 2))
+    r = scale / np.sqrt(m)
+    i, j = close_pairs(p, r)
+    assert np.all(i < j)
+    assert set(zip(i.tolist(), j.tolist())) == brute_pairs(p, r)  # each pair once
+    assert len(i) == len(set(zip(i.tolist(), j.tolist())))
+
+
+def test_close_pairs_at_the_borders_and_with_a_huge_radius():
+    p = np.array([[0.0, 0.0], [1 - 1e-12, 1 - 1e-12], [0.0, 1 - 1e-12], [0.5, 0.5]])
+    for r in (0.1, 0.9, 1.2, 5.0):
+        i, j = close_pairs(p, r)
+        assert set(zip(i.tolist(), j.tolist())) == brute_pairs(p, r)
+
+
+@pytest.mark.parametrize("n, c, jitter", [(64, 0.5, None), (1024, 0.5, None), (4096, 0.5, None),
+                                          (1024, 0.7254, 0.15)])
+def test_sets_get_the_spacing_and_only_close_points_move(n, c, jitter):
+    if jitter is None:  # uniform sets
+        pts = np.random.default_rng(n).random((3, n, 2))
+    else:  # Poisson disk sets (their sampler's radius) with jittered points, as a net errs
+        from trainer.samplers import sample
+        pts = sample("poisson_disk", n, count=3, seed=2)
+        pts = np.clip(pts + jitter / np.sqrt(n) * np.random.default_rng(3).standard_normal(
+            pts.shape), 0, 0.999)
+        assert np.all(min_distance(pts) < 0.5 * c / np.sqrt(n))
+    r = c / np.sqrt(n)
+    out = enforce_min_spacing(pts, r)
+    assert out.shape == pts.shape and out.dtype == np.float64
+    assert np.all((out >= 0) & (out < 1)) and np.all(np.isfinite(out))
+    assert np.all(min_distance(out) >= r * (1 - 1e-9))
+    for s in range(3):
+        i, j = close_pairs(pts[s], r)
+        close = np.unique(np.concatenate([i, j]))
+        moved = np.flatnonzero(np.any(out[s] != pts[s], axis=1))
+        assert set(close) <= set(moved)
+        # the rest is bit for bit, except points a push brought into a new close pair: near
+        # the first close pairs
+        far = np.linalg.norm(pts[s][:, None] - pts[s][close][None], axis=-1).min(1) > 3 * r
+        assert not np.any(far[moved])
+
+
+def test_sets_do_not_interact_and_spread_sets_are_unchanged():
+    pts = np.random.default_rng(1).random((4, 256, 2))
+    r = 0.7 / 16
+    both = enforce_min_spacing(pts, r)
+    for s in range(4):  # the same set alone or in a batch: the same result
+        np.testing.assert_array_equal(enforce_min_spacing(pts[s], r), both[s])
+    grid = (np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2) + 0.5) / 16
+    np.testing.assert_array_equal(enforce_min_spacing(grid, 0.99 / 16), grid)
+
+
+def test_coincident_and_corner_points_are_separated_deterministically():
+    pts = np.array([[0.3, 0.3], [0.3, 0.3], [0.0, 0.0], [0.0, 0.0], [0.9, 0.9]])
+    out = enforce_min_spacing(pts, 0.05)
+    assert min_distance(out) >= 0.05
+    np.testing.assert_array_equal(out, enforce_min_spacing(pts, 0.05))
+    np.testing.assert_array_equal(out[4], pts[4])
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match="positive number, got -0.1"):
+        enforce_min_spacing(np.zeros((4, 2)), -0.1)
+    with pytest.raises(ValueError, match="positive number, got nan"):
+        enforce_min_spacing(np.zeros((4, 2)), float("nan"))
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., n, 2\), got \(4, 3\)"):
+        enforce_min_spacing(np.zeros((4, 3)), 0.1)
+
+
+def test_spacing_coefficient_of_a_lattice():
+    k = 8
+    grid = (np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2) + 0.5) / k
+    assert spacing_coefficient(grid[None]) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="percentile must be in"):
+        spacing_coefficient(grid[None], 120)
+
+
+def test_card_spacing_is_applied_and_removable(tiny_onnx, tmp_path):
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = diffsampler_rt.Model(path).generate(256, 3, seed=5)
+    c = 0.5
+    card = set_defaults(path, min_spacing=c)
+    assert card["min_spacing"] == c
+    m = diffsampler_rt.Model(path)
+    spaced = m.generate(256, 3, seed=5)
+    np.testing.assert_array_equal(spaced, enforce_min_spacing(plain, c / 16))
+    assert np.all(min_distance(spaced) >= c / 16)
+    np.testing.assert_array_equal(m.generate(256, 3, seed=5, structure=False), plain)
+    blocks = np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=5)))
+    np.testing.assert_array_equal(blocks, spaced)
+    assert "min_spacing" not in set_defaults(path, min_spacing="none")
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(256, 3, seed=5), plain)
+    with pytest.raises(ValueError, match="min_spacing must be a number in"):
+        set_defaults(path, min_spacing=2.0)
+
+
+def test_card_spacing_is_validated():
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = dict(diffsampler_rt.load("rank1").card)
+    for bad in (0, -1, 1.5, "0.7", True):
+        with pytest.raises(ModelFormatError, match="min_spacing must be a number"):
+            parse_card({CARD_KEY: json.dumps({**card, "min_spacing": bad})}, "m")
+    assert parse_card({CARD_KEY: json.dumps({**card, "min_spacing": 0.7})}, "m")["min_spacing"] == 0.7
+
+
+def test_set_defaults_cli_min_spacing(tiny_onnx, tmp_path, capsys):
+    from export.__main__ import main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    assert main(["set-defaults", str(path), "--min-spacing", "wide"]) == 2
+    assert "--min-spacing must be a number or none, got 'wide'" in capsys.readouterr().err
+    assert main(["set-defaults", str(path), "--min-spacing", "0.6"]) == 0
+    assert "min spacing 0.6" in capsys.readouterr().out
+    assert diffsampler_rt.Model(path).card["min_spacing"] == 0.6
+
+
+def test_docstring_examples():
+    assert doctest.testmod(spacing).failed == 0
+
+
+def test_bundled_blue_noise_models_keep_their_card_spacing():
+    for name in ("poisson_disk_fast", "sot_fast"):
+        m = diffsampler_rt.load(name)
+        pts = m.generate(1024, 2, seed=0)
+        assert np.all(min_distance(pts) >= m.card["min_spacing"] / 32)
+        assert np.any(min_distance(m.generate(1024, 2, seed=0, structure=False))
+                      < m.card["min_spacing"] / 32)
+
+
+def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
+    from dataclasses import replace
+
+    from tests.conftest import tiny_config
+    from trainer.__main__ import main
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_config()
+    fresh = tmp_path / "fresh.json"
+    fresh.write_text(json.dumps(cfg.to_dict()))
+    assert main(["spacing", str(fresh)]) == 2
+    assert "trains on fresh sets (no pool)" in capsys.readouterr().err
+    pooled = tmp_path / "pooled.json"
+    pooled.write_text(json.dumps(replace(cfg, data=replace(cfg.data, pool_sizes=(20, 10))).to_dict()))
+    assert main(["spacing", str(pooled), "--percentile", "50"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[1].split()[0] for line in out] == ["k=4", "k=8"]
+    from trainer.data import make_pool
+    from diffsampler_rt.grid import decode
+    pts = decode(make_pool("sobol_owen", "stratified", 8, 10, cfg.seed), stratified=True)
+    assert f"spacing coefficient {spacing_coefficient(pts, 50):.4f}" in out[1]
