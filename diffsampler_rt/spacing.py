@@ -10,8 +10,9 @@ coordinates bit for bit.
 
 The model card asks for it with ``"min_spacing": c`` (the coefficient of 1 / sqrt(n)): the
 Poisson disk sampler's own radius, or a low percentile of the smallest distance of the
-sampler's training sets (see ``python -m export set-defaults --min-spacing``). Distances are
-Euclidean in the unit square (not toroidal), as in the fidelity statistics.
+sampler's training sets (``python -m trainer spacing CONFIG`` measures it, ``python -m export
+set-defaults --min-spacing`` writes it). Distances are Euclidean in the unit square (not
+toroidal), as in the fidelity statistics.
 """
 from __future__ import annotations
 

@@ -167,11 +167,11 @@ def test_difference_term_charges_cell_to_cell_error_only():
 def test_bundled_students_were_distilled_from_the_bundled_teachers():
     # `python -m trainer distil trainer/configs/distil/NAME.json` distils from the bundled
     # teacher, so a student must have been made from exactly that file to be reproducible
-    from trainer.distil import file_hash
+    from trainer.distil import network_hash
     for name in diffsampler_rt.list_models():
         card = diffsampler_rt.load(name).card
         if "distillation" not in card:
             continue
         d = card["distillation"]
         teacher = diffsampler_rt.load(d["teacher"])
-        assert d["teacher_sha1"] == file_hash(teacher.path), (name, d["teacher"])
+        assert d["teacher_sha1"] == network_hash(teacher.path), (name, d["teacher"])

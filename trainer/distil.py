@@ -144,14 +144,19 @@ def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
     return out
 
 
-def file_hash(path: Path) -> str:
-    """The short SHA-1 a student's card records for its teacher's ONNX file."""
-    return hashlib.sha1(path.read_bytes()).hexdigest()[:12]
+def network_hash(path: Path) -> str:
+    """The short SHA-1 a student's card records for its teacher: of the teacher's ONNX
+    network without its metadata, so editing the teacher card's sampling defaults
+    (``python -m export set-defaults``) keeps the record valid."""
+    import onnx
+    model = onnx.load(str(path))
+    del model.metadata_props[:]
+    return hashlib.sha1(model.SerializeToString(deterministic=True)).hexdigest()[:12]
 
 
 def cached_trajectories(cfg: DistilConfig, teacher, teacher_sha1: str, k: int,
                         count: int) -> np.ndarray:
-    """:func:`teacher_trajectories`, cached on disk (keyed by the teacher file's hash)."""
+    """:func:`teacher_trajectories`, cached on disk (keyed by the teacher network's hash)."""
     key = json.dumps([teacher_sha1, k, count, cfg.teacher_steps,
                       cfg.student_steps, cfg.teacher_solver, cfg.seed])
     path = cache_dir() / f"traj_{teacher.name}_k{k}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy"
@@ -227,7 +232,7 @@ class Distiller:
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
         self.alpha_bar = torch.tensor(self.teacher.alpha_bar, dtype=torch.float32).to(self.device)
         self.hops = torch.tensor(hop_times(len(self.teacher.alpha_bar), cfg.student_steps))
-        self.teacher_sha1 = file_hash(self.teacher.path)  # once: saves repeat it
+        self.teacher_sha1 = network_hash(self.teacher.path)  # once: saves repeat it
         self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher,
                                                                      self.teacher_sha1, k, n))
                              for k, n in zip(cfg.sizes, cfg.trajectories)}
