@@ -24,8 +24,8 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
             "min_side": int}
 
 
-#: no set of n points in the unit square keeps them all sqrt(2 / sqrt(3) / n) apart or more
-#: (the hexagonal packing); a card asking for more could never be satisfied
+#: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
+#: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
 MAX_SPACING = 1.07
 
 

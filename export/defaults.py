@@ -48,9 +48,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     elif min_spacing is not None:
         card["min_spacing"] = min_spacing
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
-    # the runtime's own card checks (known structure, stratified embedding, spacing range),
-    # before saving;
-    # ModelFormatError is a ValueError
+    # the runtime's own card checks (known structure, stratified embedding, spacing range)
+    # before saving; ModelFormatError is a ValueError
     parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
     onnx.save(model, str(path))
     return card

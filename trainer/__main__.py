@@ -72,7 +72,7 @@ def _spacing(args: argparse.Namespace) -> None:
         pts = decode(grid, stratified=cfg.data.embedding == "stratified")
         print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient "
               f"{spacing_coefficient(pts, args.percentile):.4f} "
-              f"({args.percentile:g}th percentile of the smallest distance times sqrt(n))")
+              f"(percentile {args.percentile:g} of the sets' smallest distance, times sqrt(n))")
 
 
 def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:
