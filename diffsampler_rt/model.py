@@ -18,7 +18,8 @@ from .grid import decode
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, solve
 from .spacing import enforce_min_spacing, radius
-from .structure import applies, impose_dyadic_net
+from .structure import _impose as impose_dyadic_net_unchecked
+from .structure import applies
 
 MODELS_DIR = Path(__file__).parent / "models"
 #: points evaluated per onnxruntime call when generating many sets
@@ -203,7 +204,7 @@ class Model:
             bar.update(len(sub))
             pts = decode(grid, stratified=self.card["embedding"] == "stratified")
             if imposed:
-                pts = impose_dyadic_net(pts, k)
+                pts = impose_dyadic_net_unchecked(pts, k)
             yield pts if spacing is None else enforce_min_spacing(pts, spacing)
 
 

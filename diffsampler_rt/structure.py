@@ -96,6 +96,13 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
                                                               cells.shape[:-1]))):
         raise ValueError("points must lie one per grid cell in row-major cell order, as "
                          "a stratified decode gives them")
+    return _impose(pts, k)
+
+
+def _impose(pts: np.ndarray, k: int) -> np.ndarray:
+    """:func:`impose_dyadic_net` without its checks, for the runtime's generation loop
+    (a stratified decode already puts one point per cell in row-major order)."""
+    grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns
     out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k).swapaxes(1, 2)
