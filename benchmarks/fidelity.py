@@ -265,6 +265,10 @@ def model_card_text(c: dict) -> str:
         data = "fresh sets every step"
     sym = d.get("symmetries", [0])
     data += f"; symmetries of the square used: {sym}" if len(sym) > 1 else "; no symmetries"
+    if d.get("density_bins"):
+        data += (f"; learned after the Rosenblatt map of the density fitted to these sets on a "
+                 f"{d['density_bins']} x {d['density_bins']} histogram, mapped back at "
+                 "generation (diffsampler_rt.density)")
     params = c.get("parameters")
     arch = (f"U-Net base {u.get('base_channels')}, levels {u.get('channel_mult')}, attention at "
             f"{u.get('attention_levels')}" + (f", axial attention at {u['axial_levels']}"
@@ -281,8 +285,15 @@ def model_card_text(c: dict) -> str:
             + ("; the (0, m, 2)-net structure imposed on the decoded sets at power-of-two "
                "grid sides (diffsampler_rt.structure)" if c.get("structure") == "dyadic_net"
                else "")
-            + (f"; pairs closer than {c['min_spacing']:g} / sqrt(n) pushed apart "
+            + (f"; pairs closer than {_spacing_text(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
+
+
+def _spacing_text(spec: float | dict) -> str:
+    if isinstance(spec, dict):
+        return ("c / sqrt(n), c = " + ", ".join(f"{c:g} at n = {n}" for n, c in
+                                                zip(spec["n"], spec["c"])) + " (log-linear)")
+    return f"{spec:g} / sqrt(n)"
 
 
 def report(results: list[dict], missing: list[str], out: Path) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from typing import Any, Mapping
 
+from .density import check_table
 from .errors import ModelFormatError
 from .schedule import betas
 from .solvers import SOLVERS
@@ -27,6 +28,29 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
 #: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
 #: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
 MAX_SPACING = 1.07
+
+
+def _coefficient_ok(c: Any) -> bool:
+    return isinstance(c, (int, float)) and not isinstance(c, bool) and 0 < c < MAX_SPACING
+
+
+def spacing_problem(spec: Any) -> str | None:
+    """None if ``spec`` is a valid ``min_spacing`` (a number or a per-size table), else why."""
+    if isinstance(spec, dict):
+        ns, cs = spec.get("n"), spec.get("c")
+        if (set(spec) != {"n", "c"} or not isinstance(ns, list) or not isinstance(cs, list)
+                or not ns or len(ns) != len(cs)):
+            return (f"min_spacing table must be {{\"n\": [...], \"c\": [...]}} with lists of "
+                    f"equal, non-zero length, got {spec!r}")
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in ns) \
+                or any(a >= b for a, b in zip(ns, ns[1:])):
+            return f"min_spacing table's n must be increasing positive integers, got {ns!r}"
+        if not all(_coefficient_ok(c) for c in cs):
+            return f"min_spacing table's c must be numbers in (0, {MAX_SPACING}), got {cs!r}"
+        return None
+    if not _coefficient_ok(spec):
+        return f"min_spacing must be a number in (0, {MAX_SPACING}) or a table, got {spec!r}"
+    return None
 
 
 def describe_devices(devices: list[str] | None) -> str:
@@ -66,11 +90,10 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if structure is not None and card["embedding"] != "stratified":
         raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
                                f"embedding, the card says {card['embedding']!r}")
-    spacing = card.get("min_spacing")
-    if spacing is not None and (not isinstance(spacing, (int, float)) or isinstance(spacing, bool)
-                                or not 0 < spacing < MAX_SPACING):
-        raise ModelFormatError(f"{source}: min_spacing must be a number in (0, {MAX_SPACING}), "
-                               f"got {spacing!r}")
+    if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):
+        raise ModelFormatError(f"{source}: {problem}")
+    if "density" in card and (problem := check_table(card["density"])) is not None:
+        raise ModelFormatError(f"{source}: model card field 'density' {problem}")
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:

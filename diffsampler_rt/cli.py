@@ -100,6 +100,9 @@ def _cmd_info(args: argparse.Namespace) -> None:
     card = dict(m.card)
     if not args.full:
         card.pop("config", None)
+        if "density" in card:
+            bins = len(card["density"]["x_cdf"]) - 1
+            card["density"] = f"{bins} x {bins} table (--full prints it)"
     print(f"path: {m.path}")
     print(json.dumps(card, indent=2, sort_keys=True))
 
@@ -136,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     lst.set_defaults(func=_cmd_list)
     info = sub.add_parser("info", help="show a model's card")
     info.add_argument("model")
-    info.add_argument("--full", action="store_true", help="include the training config")
+    info.add_argument("--full", action="store_true", help="include the training config and density table")
     info.set_defaults(func=_cmd_info)
 
     args = p.parse_args(argv)

@@ -13,6 +13,7 @@ import onnxruntime as ort
 from . import _validate
 from ._progress import Progress
 from .card import parse_card
+from .density import warp
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode
 from .schedule import alphas_cumprod, timesteps
@@ -129,6 +130,8 @@ class Model:
             :mod:`diffsampler_rt.structure`) and ``"min_spacing": c`` (blue noise: pairs
             closer than c / sqrt(n) pushed apart, every other point kept;
             :mod:`diffsampler_rt.spacing`). ``False`` returns the network's sets as decoded.
+            A non-uniform model's density (card field ``"density"``) is part of the model,
+            not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
 
         Returns
         -------
@@ -192,6 +195,7 @@ class Model:
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
+        density = self.card.get("density")
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
@@ -205,7 +209,10 @@ class Model:
             pts = decode(grid, stratified=self.card["embedding"] == "stratified")
             if imposed:
                 pts = impose_dyadic_net_unchecked(pts, k)
-            yield pts if spacing is None else enforce_min_spacing(pts, spacing)
+            if spacing is not None:
+                pts = enforce_min_spacing(pts, spacing)
+            # a non-uniform model's net makes the sets in the uniform square
+            yield pts if density is None else warp(pts, density)
 
 
 def session_options(threads: int | None = None) -> "ort.SessionOptions":

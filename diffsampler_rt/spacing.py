@@ -11,8 +11,11 @@ coordinates bit for bit.
 The model card asks for it with ``"min_spacing": c`` (the coefficient of 1 / sqrt(n)): the
 Poisson disk sampler's own radius, or a low percentile of the smallest distance of the
 sampler's training sets (``python -m trainer spacing CONFIG`` measures it, ``python -m export
-set-defaults --min-spacing`` writes it). Distances are Euclidean in the unit square (not
-toroidal), as in the fidelity statistics.
+set-defaults --min-spacing`` writes it). Where that coefficient drifts with n (SOT's smallest
+distance shrinks from ~0.71 / sqrt(n) at n = 64 to ~0.57 / sqrt(n) at 4096), the card can
+give one per trained size instead, ``"min_spacing": {"n": [64, 256, 1024], "c": [...]}``:
+linear in log n between them, the end values beyond. Distances are Euclidean in the unit
+square (not toroidal), as in the fidelity statistics.
 """
 from __future__ import annotations
 
@@ -25,10 +28,17 @@ _BELOW_ONE = np.nextafter(1.0, 0.0)
 _OVERSHOOT = 0.01
 
 
+def coefficient(spec: float | dict, n: int) -> float:
+    """c at n points for a card's ``min_spacing``: a number, or a per-size table."""
+    if isinstance(spec, dict):
+        return float(np.interp(np.log(n), np.log(spec["n"]), spec["c"]))
+    return float(spec)
+
+
 def radius(card: dict, n: int) -> float | None:
     """The spacing radius the card asks for at n points (None: the card asks for none)."""
-    c = card.get("min_spacing")
-    return None if c is None else float(c) / np.sqrt(n)
+    spec = card.get("min_spacing")
+    return None if spec is None else coefficient(spec, n) / np.sqrt(n)
 
 
 def close_pairs(points: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,7 +1,7 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N] [--structure dyadic_net|none]
-[--min-spacing C|none]``: change the sampling defaults in an exported model's card.
+[--min-spacing C|N:C,...|none]``: change the sampling defaults in an exported model's card.
 
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
@@ -23,17 +23,18 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--steps", type=int)
     p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
                    help="net structure imposed on generated sets (none: remove)")
-    p.add_argument("--min-spacing", metavar="C|none",
-                   help="push apart pairs closer than C / sqrt(n) (C from `python -m trainer "
-                        "spacing CONFIG`; none: remove)")
+    p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
+                   help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
+                        "(linear in log n between them). C from `python -m trainer spacing "
+                        "CONFIG`; none: remove")
     args = p.parse_args(argv)
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         try:
-            spacing = float(spacing)
+            spacing = parse_spacing(spacing)
         except ValueError:
-            print(f"error: --min-spacing must be a number or none, got {spacing!r}",
-                  file=sys.stderr)
+            print(f"error: --min-spacing must be a number, N:C pairs separated by commas, or "
+                  f"none, got {spacing!r}", file=sys.stderr)
             return 2
     if not args.model.exists():
         print(f"error: model {args.model} not found", file=sys.stderr)
@@ -47,8 +48,24 @@ def set_defaults_main(argv: list[str]) -> int:
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
           f"{card['default_steps']} steps, structure {card.get('structure', 'none')}, "
-          f"min spacing {card.get('min_spacing', 'none')}")
+          f"min spacing {format_spacing(card.get('min_spacing'))}")
     return 0
+
+
+def parse_spacing(text: str) -> float | dict:
+    """"0.6" -> 0.6; "64:0.7,1024:0.6" -> {"n": [64, 1024], "c": [0.7, 0.6]} (ValueError)."""
+    if ":" not in text:
+        return float(text)
+    pairs = [item.split(":") for item in text.split(",")]
+    if any(len(p) != 2 for p in pairs):
+        raise ValueError(text)
+    return {"n": [int(n) for n, _ in pairs], "c": [float(c) for _, c in pairs]}
+
+
+def format_spacing(spec: float | dict | None) -> str:
+    if isinstance(spec, dict):
+        return ",".join(f"{n}:{c:g}" for n, c in zip(spec["n"], spec["c"]))
+    return "none" if spec is None else f"{spec:g}"
 
 
 def reexport_main(argv: list[str]) -> int:

@@ -20,7 +20,7 @@ from diffsampler_rt.solvers import SOLVERS
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None,
-                 min_spacing: float | str | None = None) -> dict:
+                 min_spacing: float | dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` / ``min_spacing`` of
     the card in ``path`` (``"none"`` removes a structure or spacing); returns the card."""
     if solver is not None and solver not in SOLVERS:

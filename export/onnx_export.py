@@ -161,6 +161,8 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
                       train_devices=state.get("devices"),
                       parameters=sum(p.numel() for p in net.parameters()),
                       extra=state.get("card_extra"))
+    if state.get("density") is not None:  # non-uniform: the runtime maps the sets back
+        card["density"] = state["density"]
     out = export_model(net, card, path, fp16_weights=fp16_weights)
     diffs = check_parity(net, out, sides=parity_sides, tolerance=tolerance) if parity_sides else {}
     return out, diffs

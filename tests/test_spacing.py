@@ -8,7 +8,7 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, spacing
-from diffsampler_rt.spacing import close_pairs, enforce_min_spacing
+from diffsampler_rt.spacing import close_pairs, enforce_min_spacing, radius
 from trainer.stats import min_distance, spacing_coefficient
 
 
@@ -124,6 +124,15 @@ def test_card_spacing_is_validated():
     for bad in (0, -1, 1.5, "0.7", True):
         with pytest.raises(ModelFormatError, match="min_spacing must be a number"):
             parse_card({CARD_KEY: json.dumps({**card, "min_spacing": bad})}, "m")
+    for bad, why in (({"n": [64]}, "must be {"), ({"n": [64, 256], "c": [0.7]}, "equal"),
+                     ({"n": [64, 64], "c": [0.7, 0.6]}, "increasing"),
+                     ({"n": [64.0], "c": [0.7]}, "increasing positive integers"),
+                     ({"n": [64], "c": [2.0]}, "c must be numbers in")):
+        with pytest.raises(ModelFormatError, match=why):
+            parse_card({CARD_KEY: json.dumps({**card, "min_spacing": bad})}, "m")
+    table = {"n": [64, 1024], "c": [0.7, 0.6]}
+    assert parse_card({CARD_KEY: json.dumps({**card, "min_spacing": table})}, "m")["min_spacing"] \
+        == table
     assert parse_card({CARD_KEY: json.dumps({**card, "min_spacing": 0.7})}, "m")["min_spacing"] == 0.7
 
 
@@ -132,10 +141,33 @@ def test_set_defaults_cli_min_spacing(tiny_onnx, tmp_path, capsys):
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     assert main(["set-defaults", str(path), "--min-spacing", "wide"]) == 2
-    assert "--min-spacing must be a number or none, got 'wide'" in capsys.readouterr().err
+    assert "--min-spacing must be a number, N:C pairs separated by commas, or none, got 'wide'" \
+        in capsys.readouterr().err
+    assert main(["set-defaults", str(path), "--min-spacing", "64:0.7:1"]) == 2
     assert main(["set-defaults", str(path), "--min-spacing", "0.6"]) == 0
     assert "min spacing 0.6" in capsys.readouterr().out
     assert diffsampler_rt.Model(path).card["min_spacing"] == 0.6
+    assert main(["set-defaults", str(path), "--min-spacing", "64:0.7,1024:0.6"]) == 0
+    assert "min spacing 64:0.7,1024:0.6" in capsys.readouterr().out
+    assert diffsampler_rt.Model(path).card["min_spacing"] == {"n": [64, 1024], "c": [0.7, 0.6]}
+    assert main(["set-defaults", str(path), "--min-spacing", "1024:0.7,64:0.6"]) == 2
+    assert "n must be increasing positive integers" in capsys.readouterr().err
+
+
+def test_per_size_spacing_table(tiny_onnx, tmp_path):
+    from diffsampler_rt.spacing import coefficient, radius
+    from export.defaults import set_defaults
+    table = {"n": [64, 1024], "c": [0.7, 0.6]}
+    # log-linear between the sizes, the end values beyond them
+    assert coefficient(table, 256) == pytest.approx(0.65)
+    assert coefficient(table, 16) == 0.7 and coefficient(table, 4096) == 0.6
+    assert radius({"min_spacing": table}, 256) == pytest.approx(0.65 / 16)
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = diffsampler_rt.Model(path).generate(256, 2, seed=3)
+    set_defaults(path, min_spacing=table)
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(256, 2, seed=3),
+                                  enforce_min_spacing(plain, coefficient(table, 256) / 16))
 
 
 def test_docstring_examples():
@@ -146,9 +178,9 @@ def test_bundled_blue_noise_models_keep_their_card_spacing():
     for name in ("poisson_disk_fast", "sot_fast"):
         m = diffsampler_rt.load(name)
         pts = m.generate(1024, 2, seed=0)
-        assert np.all(min_distance(pts) >= m.card["min_spacing"] / 32)
-        assert np.any(min_distance(m.generate(1024, 2, seed=0, structure=False))
-                      < m.card["min_spacing"] / 32)
+        r = radius(m.card, 1024)
+        assert np.all(min_distance(pts) >= r)
+        assert np.any(min_distance(m.generate(1024, 2, seed=0, structure=False)) < r)
 
 
 def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
@@ -166,8 +198,10 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
     pooled.write_text(json.dumps(replace(cfg, data=replace(cfg.data, pool_sizes=(20, 10))).to_dict()))
     assert main(["spacing", str(pooled), "--percentile", "50"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert [line.split(":")[1].split()[0] for line in out] == ["k=4", "k=8"]
+    assert [line.split(":")[1].split()[0] for line in out[:2]] == ["k=4", "k=8"]
+    assert out[2].startswith("tiny: per size: --min-spacing 16:")
     from trainer.data import make_pool
     from diffsampler_rt.grid import decode
     pts = decode(make_pool("sobol_owen", "stratified", 8, 10, cfg.seed), stratified=True)
     assert f"spacing coefficient {spacing_coefficient(pts, 50):.4f}" in out[1]
+    assert out[2].endswith(f",64:{spacing_coefficient(pts, 50):.4f}")

@@ -34,6 +34,10 @@ def _optimise(args: argparse.Namespace) -> None:
     from .train import load_checkpoint, model_from_checkpoint
     torch.set_num_threads(args.threads)
     net, cfg = model_from_checkpoint(load_checkpoint(args.checkpoint))
+    if cfg.data.density_bins:
+        raise ValueError(f"{args.checkpoint} is a non-uniform model (its net makes sets in the "
+                         "uniform square, mapped to a density afterwards); the objectives "
+                         "are for uniform samplers")
     show = sys.stderr.isatty()
 
     def report(it: int, values) -> None:
@@ -65,14 +69,17 @@ def _spacing(args: argparse.Namespace) -> None:
     if not any(cfg.data.pool_sizes):
         raise ValueError(f"{args.config} trains on fresh sets (no pool); nothing to measure")
     pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(), workers=args.workers).pools
+    table = []
     for k, pool in sorted(pools.items()):
         # the pool's own sets only: its shifted copies are translated on the torus, which
         # changes Euclidean distances across the border
         grid = np.asarray(pool[::cfg.data.shifts], dtype=np.float64)
         pts = decode(grid, stratified=cfg.data.embedding == "stratified")
-        print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient "
-              f"{spacing_coefficient(pts, args.percentile):.4f} "
+        c = spacing_coefficient(pts, args.percentile)
+        table.append(f"{k * k}:{c:.4f}")
+        print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient {c:.4f} "
               f"(percentile {args.percentile:g} of the sets' smallest distance, times sqrt(n))")
+    print(f"{cfg.name}: per size: --min-spacing {','.join(table)}")
 
 
 def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:

@@ -29,6 +29,14 @@ class DataConfig:
     #: uniform random vector modulo 1, each embedded anew (toroidal samplers only, whose
     #: distribution is invariant under translations of the torus)
     shifts: int = 1
+    #: > 0 for non-uniform samplers: fit the density of the pooled training sets on a
+    #: bins x bins histogram (trainer.density) and learn the sets after its Rosenblatt map
+    #: to the uniform square; the table goes into the card and the runtime maps back
+    density_bins: int = 0
+    #: grid sides whose pooled sets the density is fitted to; empty = the largest only (a
+    #: small set's intensity need not be the density: the leftmost point of a 64-point SOT
+    #: ramp set sits near y = 0.5 in nearly every set)
+    density_sides: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)

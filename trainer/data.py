@@ -9,7 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from diffsampler_rt.density import unwarp
+from diffsampler_rt.grid import decode
+
 from .config import DataConfig
+from .density import fit_density
 from .embedding import embed, symmetries
 from .samplers import TOROIDAL, sample
 
@@ -69,8 +73,26 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
     return pool
 
 
+def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
+               sides: tuple[int, ...] = ()) -> tuple[dict[int, np.ndarray], dict[str, list]]:
+    """Fit the density to the pooled sets of ``sides`` (default: the largest side) and
+    re-embed every pool after the density's map to the uniform square."""
+    sides = sides or (max(pools),)
+    if not set(sides) <= set(pools):
+        raise ValueError(f"density_sides {list(sides)} must be among the pooled sides "
+                         f"{sorted(pools)}")
+    points = {k: decode(p) for k, p in pools.items()}
+    table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
+    return ({k: embed(unwarp(p, table), embedding).astype(np.float32)
+             for k, p in points.items()}, table)
+
+
 class Batches:
-    """Draws one batch per grid size from fresh sets or from a cached pool."""
+    """Draws one batch per grid size from fresh sets or from a cached pool.
+
+    With ``density_bins`` the pools are taken to the uniform square first (see
+    :func:`uniformise`); ``density`` is then the fitted table, else None.
+    """
 
     def __init__(self, cfg: DataConfig, seed: int, progress: bool = False, workers: int = 1):
         if not len(cfg.sizes) == len(cfg.batch_sizes) == len(cfg.pool_sizes):
@@ -81,6 +103,13 @@ class Batches:
         self.pools = {k: make_pool(cfg.sampler, cfg.embedding, k, p, seed, progress, cfg.shifts,
                                    workers)
                       for k, p in zip(cfg.sizes, cfg.pool_sizes) if p > 0}
+        self.density = None
+        if cfg.density_bins:
+            if len(self.pools) != len(cfg.sizes) or cfg.shifts != 1:
+                raise ValueError("density_bins needs a pool at every size (pool_sizes > 0) "
+                                 "and shifts = 1: the density is fitted to the pooled sets")
+            self.pools, self.density = uniformise(self.pools, cfg.embedding, cfg.density_bins,
+                                                  cfg.density_sides)
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:
         """One float32 array (B_k, 2, k, k) per size, offsets times the offset scale."""

@@ -107,7 +107,8 @@ class Trainer:
         return {"config": self.cfg.to_dict(), "step": self.step, "elapsed_s": self.elapsed,
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
                 "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state,
-                "torch_gen": self.gen.get_state(), "devices": self.devices}
+                "torch_gen": self.gen.get_state(), "devices": self.devices,
+                "density": self.batches.density}
 
     def _restore(self, st: dict[str, Any]) -> None:
         if st["config"] != self.cfg.to_dict():

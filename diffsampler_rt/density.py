@@ -1,0 +1,99 @@
+"""Non-uniform models: a density learned from the examples, as a map to and from the square.
+
+A model of a non-uniform sampler learns its sets after the Rosenblatt map of their density
+(x -> F_X(x), y -> F_Y|X(y | x)), which takes them to the uniform square; the runtime maps
+the generated sets back with the inverse. The density lives in the card as a table fitted
+to the training sets (``trainer.density``):
+
+- ``x_cdf``: the x-marginal's CDF at x = 0, 1/B, ..., 1 (B + 1 increasing values, 0 to 1);
+- ``y_cdf``: for each of the B columns of width 1/B, the CDF of y in that column at
+  y = 0, 1/B, ..., 1.
+
+Between the knots each CDF is linear (a density constant per bin); the conditional CDF at
+x is interpolated linearly between the column centres, so both maps are continuous and
+their pieces invert exactly.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+#: largest table side a card may carry (the card is JSON in the ONNX metadata)
+MAX_BINS = 256
+
+
+def check_table(table: Any) -> str | None:
+    """None if ``table`` is a valid density table, else what is wrong with it."""
+    if not isinstance(table, Mapping) or set(table) != {"x_cdf", "y_cdf"}:
+        return "must be an object with exactly the keys 'x_cdf' and 'y_cdf'"
+    try:
+        xc = np.asarray(table["x_cdf"], dtype=np.float64)
+        yc = np.asarray(table["y_cdf"], dtype=np.float64)
+    except (TypeError, ValueError):
+        return "x_cdf and y_cdf must be numbers"
+    bins = xc.size - 1
+    if xc.ndim != 1 or not 1 <= bins <= MAX_BINS:
+        return f"x_cdf must hold 2 to {MAX_BINS + 1} numbers"
+    if yc.shape != (bins, bins + 1):
+        return f"y_cdf must be {bins} rows of {bins + 1} numbers, got shape {yc.shape}"
+    for name, c in (("x_cdf", xc[None]), ("y_cdf", yc)):
+        if not np.all(np.isfinite(c)) or np.any(c[:, 0] != 0) or np.any(c[:, -1] != 1) \
+                or np.any(np.diff(c, axis=1) <= 0):
+            return f"each {name} row must increase strictly from 0 to 1"
+    return None
+
+
+def _tables(table: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    xc = np.asarray(table["x_cdf"], dtype=np.float64)
+    yc = np.asarray(table["y_cdf"], dtype=np.float64)
+    return np.linspace(0.0, 1.0, xc.size), xc, yc
+
+
+def _column_cdf(x: np.ndarray, yc: np.ndarray) -> np.ndarray:
+    """(m, B + 1): the conditional CDF knots of y at each x (columns blended linearly)."""
+    bins = yc.shape[0]
+    c = np.clip(x * bins - 0.5, 0.0, bins - 1.0)  # position in column-centre units
+    i = np.minimum(c.astype(np.int64), max(bins - 2, 0))
+    w = (c - i)[:, None]
+    return yc[i] * (1 - w) + yc[np.minimum(i + 1, bins - 1)] * w
+
+
+def unwarp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
+    """Points (..., 2) of the density -> the uniform square (the Rosenblatt map)."""
+    knots, xc, yc = _tables(table)
+    p = np.asarray(points, dtype=np.float64)
+    flat = p.reshape(-1, 2)
+    u = np.interp(flat[:, 0], knots, xc)
+    col = _column_cdf(flat[:, 0], yc)
+    bins = yc.shape[0]
+    s = np.clip(flat[:, 1], 0.0, 1.0) * bins
+    j = np.minimum(s.astype(np.int64), bins - 1)
+    rows = np.arange(len(flat))
+    v = col[rows, j] + (s - j) * (col[rows, j + 1] - col[rows, j])
+    out = np.clip(np.column_stack([u, v]), 0.0, np.nextafter(1.0, 0.0))
+    return out.reshape(p.shape)
+
+
+def warp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
+    """Points (..., 2) in the uniform square -> the density (inverse of :func:`unwarp`).
+
+    Examples
+    --------
+    >>> t = {"x_cdf": [0.0, 0.25, 1.0], "y_cdf": [[0.0, 0.5, 1.0], [0.0, 0.5, 1.0]]}
+    >>> warp(np.array([[0.25, 0.5]]), t)
+    array([[0.5, 0.5]])
+    """
+    knots, xc, yc = _tables(table)
+    p = np.asarray(points, dtype=np.float64)
+    flat = p.reshape(-1, 2)
+    x = np.interp(flat[:, 0], xc, knots)
+    col = _column_cdf(x, yc)
+    bins = yc.shape[0]
+    v = np.clip(flat[:, 1], 0.0, 1.0)
+    j = np.clip((col <= v[:, None]).sum(axis=1) - 1, 0, bins - 1)
+    rows = np.arange(len(flat))
+    lo, hi = col[rows, j], col[rows, j + 1]
+    y = (j + (v - lo) / (hi - lo)) / bins
+    out = np.clip(np.column_stack([x, y]), 0.0, np.nextafter(1.0, 0.0))
+    return out.reshape(p.shape)

@@ -1,0 +1,160 @@
+"""Non-uniform models: the density table, its maps, the fit, training data and the runtime."""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt.card import CARD_KEY, parse_card
+from diffsampler_rt.density import check_table, unwarp, warp
+from diffsampler_rt.errors import ModelFormatError
+from trainer.density import fit_density
+from trainer.samplers.densities import ramp_unwarp
+
+
+def random_table(bins: int, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    return fit_density(rng.random((4000, 2)) ** np.array([0.5, 2.0]), bins)
+
+
+def ramp_points(count: int, seed: int) -> np.ndarray:
+    """Exact draws of the density 2x (x = sqrt(u))."""
+    u = np.random.default_rng(seed).random((count, 2))
+    return np.column_stack([np.sqrt(u[:, 0]), u[:, 1]])
+
+
+@pytest.mark.parametrize("bins", [1, 2, 7, 16])
+def test_warp_and_unwarp_are_inverse(bins):
+    table = random_table(bins, seed=bins)
+    assert check_table(table) is None
+    u = np.random.default_rng(1).random((3, 500, 2))
+    p = warp(u, table)
+    assert p.shape == u.shape and np.all((p >= 0) & (p < 1))
+    np.testing.assert_allclose(unwarp(p, table), u, atol=1e-12)
+    np.testing.assert_allclose(warp(unwarp(u, table), table), u, atol=1e-12)
+
+
+def test_maps_are_continuous_across_bins():
+    table = random_table(8)
+    x = np.linspace(0, 1, 20001, endpoint=False)
+    for line in (np.column_stack([x, np.full_like(x, 0.37)]),
+                 np.column_stack([np.full_like(x, 0.61), x])):
+        for f in (warp, unwarp):
+            assert np.abs(np.diff(f(line, table), axis=0)).max() < 1e-3
+
+
+def test_fit_recovers_a_known_density():
+    table = fit_density(ramp_points(200_000, 0), 16)
+    test = ramp_points(5000, 1)
+    # the fitted Rosenblatt map is the exact one (x -> x^2, y -> y) up to the histogram's
+    # sampling noise (~780 white-noise points in a bin at small x) and its piecewise-constant
+    # density (h^2 / 4 = 0.001 at most in x)
+    err = np.abs(unwarp(test, table) - ramp_unwarp(test))
+    assert err.mean() < 0.002 and np.quantile(err, 0.99) < 0.008
+    u = np.random.default_rng(2).random((100_000, 2))
+    counts = np.histogram(warp(u, table)[:, 0], bins=4, range=(0, 1))[0] / len(u)
+    np.testing.assert_allclose(counts, [1 / 16, 3 / 16, 5 / 16, 7 / 16], atol=0.005)
+
+
+def test_fit_arguments_checked():
+    with pytest.raises(ValueError, match="bins must be an integer"):
+        fit_density(np.zeros((4, 2)), 0)
+    with pytest.raises(ValueError, match="floor must be > 0"):
+        fit_density(np.zeros((4, 2)), 4, floor=0)
+    with pytest.raises(ValueError, match="points in"):
+        fit_density(np.full((4, 2), 1.5), 4)
+
+
+def test_bad_tables_named():
+    good = random_table(4)
+    assert "exactly the keys" in check_table({"x_cdf": good["x_cdf"]})
+    assert "rows of 5" in check_table({**good, "y_cdf": good["y_cdf"][:3]})
+    flat = [0.0, 0.5, 0.5, 0.7, 1.0]
+    assert "increase strictly" in check_table({**good, "x_cdf": flat})
+    assert "increase strictly" in check_table({**good, "x_cdf": [0.0, 0.2, 0.4, 0.6, 0.9]})
+    assert "numbers" in check_table({**good, "x_cdf": ["a"] * 5})
+    card = dict(diffsampler_rt.load("rank1").card)
+    with pytest.raises(ModelFormatError, match="'density' must be an object"):
+        parse_card({CARD_KEY: json.dumps({**card, "density": [1, 2]})}, "m")
+    assert parse_card({CARD_KEY: json.dumps({**card, "density": good})}, "m")["density"] == good
+
+
+def _with_card(src, dst, **fields):
+    import onnx
+    model = onnx.load(str(src))
+    prop = next(p for p in model.metadata_props if p.key == CARD_KEY)
+    prop.value = json.dumps({**json.loads(prop.value), **fields})
+    onnx.save(model, str(dst))
+    return dst
+
+
+def test_runtime_maps_the_sets_to_the_cards_density(tiny_onnx, tmp_path):
+    table = random_table(6)
+    plain = diffsampler_rt.Model(tiny_onnx).generate(64, 3, seed=4)
+    m = diffsampler_rt.Model(_with_card(tiny_onnx, tmp_path / "d.onnx", density=table))
+    out = m.generate(64, 3, seed=4)
+    np.testing.assert_array_equal(out, warp(plain, table))
+    # the density is the model, not an optional repair: structure=False keeps it
+    bare = diffsampler_rt.Model(tiny_onnx).generate(64, 3, seed=4, structure=False)
+    np.testing.assert_array_equal(m.generate(64, 3, seed=4, structure=False),
+                                  warp(bare, table))
+    assert np.all((out >= 0) & (out < 1))
+
+
+def test_training_pools_are_uniformised(monkeypatch, tmp_path):
+    from tests.conftest import tiny_config
+    from trainer.data import Batches, make_pool
+    from diffsampler_rt.grid import decode
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path))
+    cfg = tiny_config(sampler="rank1", embedding="ot")
+    data = replace(cfg.data, pool_sizes=(6, 3), density_bins=4)
+    batches = Batches(data, seed=1)
+    raw = {k: decode(make_pool("rank1", "ot", k, p, 1)) for k, p in zip((4, 8), (6, 3))}
+    table = fit_density(raw[8], 4)  # the largest side by default
+    assert batches.density == table
+    both = Batches(replace(data, density_sides=(4, 8)), seed=1).density
+    assert both == fit_density(np.concatenate([raw[4].reshape(-1, 2), raw[8].reshape(-1, 2)]), 4)
+    with pytest.raises(ValueError, match=r"density_sides \[16\] must be among"):
+        Batches(replace(data, density_sides=(16,)), seed=1)
+    for k, pts in raw.items():
+        got = np.sort(decode(batches.pools[k]), axis=1)
+        want = np.sort(unwarp(pts, table), axis=1)
+        np.testing.assert_allclose(got, want, atol=1e-6)
+    with pytest.raises(ValueError, match="density_bins needs a pool at every size"):
+        Batches(replace(data, pool_sizes=(6, 0)), seed=1)
+
+
+def test_density_goes_from_training_to_the_card(monkeypatch, tmp_path, capsys):
+    from tests.conftest import tiny_config
+    from export.onnx_export import export_checkpoint
+    from trainer.train import Trainer
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_config(sampler="rank1", embedding="ot")
+    cfg = replace(cfg, steps=2, data=replace(cfg.data, pool_sizes=(4, 2), density_bins=3))
+    tr = Trainer(cfg, tmp_path / "run", progress=False)
+    ckpt = tr.run()
+    out, _ = export_checkpoint(ckpt, tmp_path / "m.onnx", parity_sides=None)
+    m = diffsampler_rt.Model(out)
+    assert m.card["density"] == tr.batches.density
+    pts = m.generate(16, 2, seed=0)
+    assert pts.shape == (2, 16, 2) and np.all((pts >= 0) & (pts < 1))
+    from trainer.__main__ import main
+    assert main(["optimise", str(ckpt), "16", "--iterations", "1", "-o",
+                 str(tmp_path / "o.npy")]) == 2
+    assert "non-uniform model" in capsys.readouterr().err
+    shutil.rmtree(tmp_path / "cache")
+
+
+def test_cli_info_summarises_the_table(tiny_onnx, tmp_path, capsys):
+    from diffsampler_rt.cli import main
+    path = _with_card(tiny_onnx, tmp_path / "d.onnx", density=random_table(5))
+    assert main(["info", str(path)]) == 0
+    assert '"density": "5 x 5 table (--full prints it)"' in capsys.readouterr().out
+    assert main(["info", str(path), "--full"]) == 0
+    assert '"x_cdf"' in capsys.readouterr().out
