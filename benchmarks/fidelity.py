@@ -278,7 +278,8 @@ def model_card_text(c: dict) -> str:
     secs = c.get("train_seconds")
     train = (f"{c['training_steps']} steps (batches {d.get('batch_sizes')} at k = "
              f"{d.get('sizes')})" + (_train_time(secs, c, cfg) if secs else "")
-             + (", bf16 autocast" if cfg.get("bf16") else ""))
+             + (", bf16 autocast" if cfg.get("bf16") else "")
+             + (f", from the weights of `{cfg['init_from']}`" if cfg.get("init_from") else ""))
     return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
             f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
