@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     lst.set_defaults(func=_cmd_list)
     info = sub.add_parser("info", help="show a model's card")
     info.add_argument("model")
-    info.add_argument("--full", action="store_true", help="include the training config and density table")
+    info.add_argument("--full", action="store_true",
+                      help="include the training config and density table")
     info.set_defaults(func=_cmd_info)
 
     args = p.parse_args(argv)

@@ -161,13 +161,13 @@ def test_cli_info_summarises_the_table(tiny_onnx, tmp_path, capsys):
 
 
 def test_bundled_density_models_follow_their_density_at_an_unseen_size():
+    from benchmarks.fidelity import chi2_density  # the fidelity report's density check
     from trainer.samplers.densities import UNWARP
     for name in ("sot_ramp", "gbn_blob"):
         m = diffsampler_rt.load(name)
         assert "density" in m.card
         u = UNWARP[m.card["sampler"]](m.generate(4096, seed=0))  # the exact map to the square
-        counts = np.histogram2d(u[:, 0], u[:, 1], bins=8, range=[[0, 1], [0, 1]])[0]
-        chi2 = ((counts - 64) ** 2 / 64).sum()
+        chi2 = float(chi2_density(u[None])[0])
         # a set that follows the density has chi-square ~63 or less (blue noise: less); the
         # models trained on the raw sets had 492 (sot_ramp) and 2171 (gbn_blob) here
         assert chi2 < 100, (name, chi2)
