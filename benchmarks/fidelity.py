@@ -283,11 +283,29 @@ def model_card_text(c: dict) -> str:
     return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
             f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
-            + ("; the (0, m, 2)-net structure imposed on the decoded sets at power-of-two "
-               "grid sides (diffsampler_rt.structure)" if c.get("structure") == "dyadic_net"
-               else "")
+            + _structure_text(c)
+            + (f"; then {_sliced_text(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
+               if c.get("sliced_ot") else "")
             + (f"; pairs closer than {_spacing_text(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
+
+
+def _structure_text(c: dict) -> str:
+    what = {"dyadic_net": "the (0, m, 2)-net structure",
+            "n_rooks": "1-d stratified projections (n-rooks)"}.get(c.get("structure"))
+    if what is None:
+        return ""
+    sides = f" >= {c['structure_min_side']}" if c.get("structure_min_side", 1) > 1 else ""
+    guide = (f", and on the clean-set prediction of the last {c['structure_guidance']} solver "
+             "steps" if c.get("structure_guidance") else "")
+    return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide} "
+            "(diffsampler_rt.structure)")
+
+
+def _sliced_text(spec: dict) -> str:
+    its = (", ".join(f"{k} at n = {n}" for n, k in zip(spec["n"], spec["iterations"]))
+           + " (log-linear, rounded)" if "n" in spec else str(spec["iterations"]))
+    return f"sliced-OT iterations of {spec['directions']} directions: {its}"
 
 
 def _spacing_text(spec: float | dict) -> str:

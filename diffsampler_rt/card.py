@@ -11,6 +11,7 @@ from typing import Any, Mapping
 from .density import check_table
 from .errors import ModelFormatError
 from .schedule import betas
+from .sliced_ot import settings_problem as sliced_problem
 from .solvers import SOLVERS
 from .structure import STRUCTURES
 
@@ -90,6 +91,17 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if structure is not None and card["embedding"] != "stratified":
         raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
                                f"embedding, the card says {card['embedding']!r}")
+    for key, low in (("structure_min_side", 1), ("structure_guidance", 0)):
+        value = card.get(key)
+        if value is None:
+            continue
+        if structure is None:
+            raise ModelFormatError(f"{source}: model card field {key!r} needs a structure")
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
+                                   f">= {low}, got {value!r}")
+    if "sliced_ot" in card and (problem := sliced_problem(card["sliced_ot"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
     if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):
         raise ModelFormatError(f"{source}: {problem}")
     if "density" in card and (problem := check_table(card["density"])) is not None:

@@ -119,8 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="default: the model card's")
     g.add_argument("--no-structure", action="store_true",
-                   help="return the network's sets as decoded: no net structure (sobol_owen), "
-                        "no minimum spacing (blue-noise models) from the model card")
+                   help="return the network's sets as decoded: no net or n-rooks structure "
+                        "(sobol_owen, ldbn), no minimum spacing (blue-noise models)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")

@@ -51,3 +51,13 @@ def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
         y = np.clip(y, lo[:, None], hi[:, None])
     pts = np.stack([x, y], axis=-1).reshape(grid.shape[:-3] + (k * k, 2))
     return np.clip(pts, 0.0, _BELOW_ONE)
+
+
+def encode_stratified(points: np.ndarray, k: int) -> np.ndarray:
+    """Inverse of ``decode(..., stratified=True)``: points (..., k*k, 2) in row-major cell
+    order -> offsets (..., 2, k, k) in cell units."""
+    pts = np.asarray(points, dtype=np.float64)
+    centre = np.arange(k, dtype=np.float64) + 0.5
+    x = pts[..., 0].reshape(pts.shape[:-2] + (k, k)) * k - centre[None, :]
+    y = pts[..., 1].reshape(pts.shape[:-2] + (k, k)) * k - centre[:, None]
+    return np.stack([x, y], axis=-3)

@@ -15,11 +15,12 @@ from ._progress import Progress
 from .card import parse_card
 from .density import warp
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
-from .grid import decode
+from .grid import decode, encode_stratified
 from .schedule import alphas_cumprod, timesteps
-from .solvers import SOLVERS, solve
+from .solvers import SOLVERS, project_x0, solve
+from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
-from .structure import _impose as impose_dyadic_net_unchecked
+from .structure import _impose as impose_unchecked
 from .structure import applies
 
 MODELS_DIR = Path(__file__).parent / "models"
@@ -127,9 +128,15 @@ class Model:
             Restore what the sampler has by construction, as the model card says:
             ``"structure": "dyadic_net"`` (sobol_owen: every set of 2^m points, k a power
             of two, made a (0, m, 2)-net without moving any point out of its grid cell;
-            :mod:`diffsampler_rt.structure`) and ``"min_spacing": c`` (blue noise: pairs
-            closer than c / sqrt(n) pushed apart, every other point kept;
-            :mod:`diffsampler_rt.spacing`). ``False`` returns the network's sets as decoded.
+            :mod:`diffsampler_rt.structure`), ``"structure": "n_rooks"`` (ldbn: both 1-d
+            projections stratified at power-of-two k >= 16, also imposed on the clean-set
+            prediction of the last ``"structure_guidance"`` solver steps so that the net
+            arranges its sets around it), ``"sliced_ot"`` (SOT models: a few of the
+            sampler's own sliced-OT iterations from the network's set, which take out its
+            excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`) and
+            ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
+            every other point kept; :mod:`diffsampler_rt.spacing`), in that order.
+            ``False`` returns the network's sets as decoded.
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
 
@@ -186,16 +193,28 @@ class Model:
         # validated now; the sets are made as the caller iterates
         imposed = bool(structure) and applies(self.card, k)
         spacing = radius(self.card, k * k) if structure else None
+        polishing = self.card.get("sliced_ot") if structure else None
+        sliced = iterations_at(polishing, k * k) if polishing else 0
         return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, spacing)
+                            imposed, spacing, sliced)
 
     def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool,
-                spacing: float | None):
+                spacing: float | None, sliced: int):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
         density = self.card.get("density")
+        scale = float(self.card["offset_scale"])
+        eps_fn = self.denoise
+        guided = self.card.get("structure_guidance", 0) if imposed else 0
+        if guided:
+            def project(x0: np.ndarray) -> np.ndarray:
+                pts = impose_unchecked(decode(x0 / scale, stratified=True), k,
+                                       self.card["structure"])
+                return encode_stratified(pts, k) * scale
+
+            eps_fn = project_x0(self.denoise, self.alpha_bar, project, ts[max(0, len(ts) - guided):])
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
@@ -203,12 +222,14 @@ class Model:
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])
 
-            x = solve(solver, self.denoise, x, self.alpha_bar, ts, noise)
-            grid = x / float(self.card["offset_scale"])
+            x = solve(solver, eps_fn, x, self.alpha_bar, ts, noise)
+            grid = x / scale
             bar.update(len(sub))
             pts = decode(grid, stratified=self.card["embedding"] == "stratified")
             if imposed:
-                pts = impose_dyadic_net_unchecked(pts, k)
+                pts = impose_unchecked(pts, k, self.card["structure"])
+            if sliced:
+                pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub)
             if spacing is not None:
                 pts = enforce_min_spacing(pts, spacing)
             # a non-uniform model's net makes the sets in the uniform square

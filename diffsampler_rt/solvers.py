@@ -63,6 +63,25 @@ def dpmpp_2m(eps_fn: Denoiser, x: np.ndarray, alpha_bar: np.ndarray, ts: Sequenc
     return x
 
 
+def project_x0(eps_fn: Denoiser, alpha_bar: np.ndarray, project: Callable[[np.ndarray], np.ndarray],
+               at: Sequence[int]) -> Denoiser:
+    """``eps_fn`` whose clean-sample prediction is replaced by ``project(x0)`` at the
+    timestep indices ``at`` (projection guidance: the solver's later steps then denoise
+    around a set that has the structure, instead of the structure being forced on the
+    finished set alone). Any solver above takes the result as its denoiser.
+    """
+    late = frozenset(int(t) for t in at)
+
+    def guided(x: np.ndarray, t: int) -> np.ndarray:
+        eps = eps_fn(x, t)
+        if t not in late:
+            return eps
+        a, s = np.sqrt(alpha_bar[t]), np.sqrt(1.0 - alpha_bar[t])
+        return (x - a * project((x - s * eps) / a)) / s
+
+    return guided
+
+
 #: solver names accepted by :func:`solve`
 SOLVERS = ("ddim", "ddpm", "dpmpp_2m")
 

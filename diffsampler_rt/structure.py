@@ -1,4 +1,4 @@
-"""Net structure a sampler has by construction, imposed on decoded point sets.
+"""Structure a sampler has by construction, imposed on decoded point sets.
 
 A small net learns the look of Sobol'+Owen sets but not their combinatorics: in a (0, m, 2)-net
 of n = 2^m points every elementary interval (a dyadic box of area 1/n) holds exactly one point,
@@ -9,8 +9,16 @@ distinct x sub-columns of width 1/(k 2^j), for j = 1 .. log2 k (rows likewise fo
 be restored without moving any point out of its cell; a set that already is a net is returned
 unchanged.
 
-Only for stratified embeddings. The model card asks for it with ``"structure": "dyadic_net"``;
-it is imposed at power-of-two grid sides only (other n are not nets in the reference either).
+A weaker structure, ``"n_rooks"``: both 1-d projections stratified (one point in every 1/n
+strip) on top of the one point per grid cell, i.e. a multi-jittered set. Low-discrepancy blue
+noise (LDBN) has it at power-of-two sides >= 16; a small net gets close (most points already
+sit in their own strip) but no set exactly. Inside each column of cells the k points take
+the k sub-columns of width 1/n in the order of their x (rows likewise for y), the 1-d optimal
+assignment; a point already alone in its strip keeps its coordinate.
+
+Only for stratified embeddings. The model card asks for one with ``"structure"``; it is
+imposed at power-of-two grid sides k >= ``"structure_min_side"`` (default 1): other sides are
+not nets, and the base-2 samplers with n-rooks projections lack them there too.
 """
 from __future__ import annotations
 
@@ -19,12 +27,13 @@ import numpy as np
 from .grid import strip_bounds
 
 #: card values of ``"structure"`` the runtime knows
-STRUCTURES = ("dyadic_net",)
+STRUCTURES = ("dyadic_net", "n_rooks")
 
 
 def applies(card: dict, k: int) -> bool:
     """Whether the card asks for a structure that exists at grid side k."""
-    return card.get("structure") == "dyadic_net" and k & (k - 1) == 0
+    return (card.get("structure") in STRUCTURES and k & (k - 1) == 0
+            and k >= card.get("structure_min_side", 1))
 
 
 def _dyadic_slots(frac: np.ndarray) -> np.ndarray:
@@ -53,16 +62,32 @@ def _dyadic_slots(frac: np.ndarray) -> np.ndarray:
     return prefix
 
 
-def _restratify(coord: np.ndarray, k: int) -> np.ndarray:
+def _rook_slots(frac: np.ndarray) -> np.ndarray:
+    """Sub-strip index per point: its rank by offset among the k cells of its column (the
+    sorted matching, which moves points least; a column with distinct sub-strips keeps them)."""
+    return np.argsort(np.argsort(frac, axis=-1, kind="stable"), axis=-1)
+
+
+#: per structure: sub-strip choice, and whether a moved point keeps its offset inside the
+#: sub-strip (Owen-scrambled nets are uniform inside their strips, so the star discrepancy
+#: then matches the reference's) or goes to the nearest point of its new sub-strip (the
+#: least move; a net's n-rooks choice is far from the sampler's, most points move)
+_STRUCTURES = {"dyadic_net": (_dyadic_slots, True), "n_rooks": (_rook_slots, False)}
+
+
+def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net") -> np.ndarray:
     """One coordinate, shape (sets, cell index along it, k cells across) -> imposed."""
+    slots, keep_offset = _STRUCTURES[name]
     cell = np.arange(k)[None, :, None]
     frac = coord * k - cell  # offset inside the cell, [0, 1)
-    strip = cell * k + _dyadic_slots(frac)
-    # keep the offset inside the sub-strip (the star discrepancy then matches the
-    # reference's); a point already in its sub-strip keeps its coordinate bit for bit
-    fine = frac * k - np.floor(frac * k)
+    strip = cell * k + slots(frac)
     lo, hi = strip_bounds(k * k)
-    moved = np.clip((strip + fine) / (k * k), lo[strip], hi[strip])
+    if keep_offset:
+        fine = frac * k - np.floor(frac * k)
+        moved = np.clip((strip + fine) / (k * k), lo[strip], hi[strip])
+    else:
+        moved = np.clip(coord, lo[strip], hi[strip])
+    # a point already in its sub-strip keeps its coordinate bit for bit
     return np.where(np.floor(coord * (k * k)) == strip, coord, moved)
 
 
@@ -86,6 +111,33 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
     """
     if k < 1 or k & (k - 1):
         raise ValueError(f"a dyadic net needs a power-of-two grid side, got k={k}")
+    return _impose(_checked(points, k), k)
+
+
+def impose_n_rooks(points: np.ndarray, k: int) -> np.ndarray:
+    """Make each set (..., k*k, 2) from a stratified k x k grid 1-d stratified in x and y.
+
+    Every 1/n strip of either axis then holds exactly one point, and each point stays in its
+    grid cell (a multi-jittered set). Any grid side k >= 1. Points are in row-major cell
+    order, as for :func:`impose_dyadic_net`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.structure import impose_n_rooks
+    >>> k = 3
+    >>> cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
+    >>> jittered = (cells + np.random.default_rng(0).random((k * k, 2))) / k
+    >>> rooks = impose_n_rooks(jittered, k)
+    >>> [len(np.unique(np.floor(rooks[:, c] * (k * k)))) for c in (0, 1)]
+    [9, 9]
+    """
+    if k < 1:
+        raise ValueError(f"the grid side must be >= 1, got k={k}")
+    return _impose(_checked(points, k), k, "n_rooks")
+
+
+def _checked(points: np.ndarray, k: int) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64)
     if pts.shape[-2:] != (k * k, 2):
         raise ValueError(f"points must have shape (..., {k * k}, 2), got {pts.shape}")
@@ -96,15 +148,15 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
                                                               cells.shape[:-1]))):
         raise ValueError("points must lie one per grid cell in row-major cell order, as "
                          "a stratified decode gives them")
-    return _impose(pts, k)
+    return pts
 
 
-def _impose(pts: np.ndarray, k: int) -> np.ndarray:
-    """:func:`impose_dyadic_net` without its checks, for the runtime's generation loop
+def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net") -> np.ndarray:
+    """The structure ``name`` without the checks, for the runtime's generation loop
     (a stratified decode already puts one point per cell in row-major order)."""
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns
-    out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k).swapaxes(1, 2)
-    out[..., 1] = _restratify(grid[..., 1], k)
+    out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k, name).swapaxes(1, 2)
+    out[..., 1] = _restratify(grid[..., 1], k, name)
     return out.reshape(pts.shape)

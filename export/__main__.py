@@ -1,7 +1,9 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
-``python -m export set-defaults MODEL.onnx [--solver S] [--steps N] [--structure dyadic_net|none]
-[--min-spacing C|N:C,...|none]``: change the sampling defaults in an exported model's card.
+``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
+[--structure dyadic_net|n_rooks|none] [--structure-min-side K] [--structure-guidance L]
+[--sliced-ot K|N:K,...|none [--sliced-ot-directions D]] [--min-spacing C|N:C,...|none]``:
+change the sampling defaults in an exported model's card.
 
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
@@ -22,12 +24,37 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--solver", choices=list(SOLVERS))
     p.add_argument("--steps", type=int)
     p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
-                   help="net structure imposed on generated sets (none: remove)")
+                   help="structure imposed on generated sets at power-of-two grid sides "
+                        "(none: remove)")
+    p.add_argument("--structure-min-side", type=int, metavar="K",
+                   help="impose the structure only at grid sides k >= K")
+    p.add_argument("--structure-guidance", type=int, metavar="L",
+                   help="also project the clean-set prediction of the last L solver steps "
+                        "onto the structure (0: only the finished sets)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
                         "CONFIG`; none: remove")
+    p.add_argument("--sliced-ot", metavar="K|N:K,N:K,...|none",
+                   help="finish with K sliced-OT iterations (SOT models); N:K pairs give K per "
+                        "size (linear in log n between them, rounded); none: remove")
+    p.add_argument("--sliced-ot-directions", type=int, default=64, metavar="D",
+                   help="directions per sliced-OT iteration (default 64)")
     args = p.parse_args(argv)
+    sliced = args.sliced_ot
+    if sliced is not None and sliced != "none":
+        try:
+            table = parse_spacing(sliced)
+            its = table["c"] if isinstance(table, dict) else [table]
+            if any(k != int(k) for k in its):
+                raise ValueError(sliced)
+            sliced = ({"directions": args.sliced_ot_directions, "n": table["n"],
+                       "iterations": [int(k) for k in its]} if isinstance(table, dict)
+                      else {"directions": args.sliced_ot_directions, "iterations": int(table)})
+        except ValueError:
+            print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
+                  f"none, got {sliced!r}", file=sys.stderr)
+            return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         try:
@@ -42,14 +69,37 @@ def set_defaults_main(argv: list[str]) -> int:
     from .defaults import set_defaults
     try:
         card = set_defaults(args.model, solver=args.solver, steps=args.steps,
-                            structure=args.structure, min_spacing=spacing)
+                            structure=args.structure,
+                            structure_min_side=args.structure_min_side,
+                            structure_guidance=args.structure_guidance, sliced_ot=sliced,
+                            min_spacing=spacing)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
-          f"{card['default_steps']} steps, structure {card.get('structure', 'none')}, "
+          f"{card['default_steps']} steps, structure {structure_text(card)}, "
+          f"sliced OT {sliced_text(card.get('sliced_ot'))}, "
           f"min spacing {format_spacing(card.get('min_spacing'))}")
     return 0
+
+
+def structure_text(card: dict) -> str:
+    """"n_rooks (k >= 16, guiding 5 steps)", "dyadic_net", "none"."""
+    if "structure" not in card:
+        return "none"
+    notes = ([f"k >= {card['structure_min_side']}"] if "structure_min_side" in card else []) \
+        + ([f"guiding {card['structure_guidance']} steps"] if card.get("structure_guidance") else [])
+    return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
+
+
+def sliced_text(spec: dict | None) -> str:
+    """"none", "8 iterations x 64 directions", "0 / 8 / 16 iterations at n = 256 / ..."."""
+    if not spec:
+        return "none"
+    if "n" in spec:
+        return (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
+                + " / ".join(map(str, spec["n"])) + f" x {spec['directions']} directions")
+    return f"{spec['iterations']} iterations x {spec['directions']} directions"
 
 
 def parse_spacing(text: str) -> float | dict:

@@ -1,8 +1,10 @@
 """Change the sampling defaults (solver, steps, structure, spacing) in an exported model's card.
 
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
-``steps``, and what it restores on the decoded sets: a net structure
-(``diffsampler_rt.structure``) or a minimum spacing (``diffsampler_rt.spacing``; the
+``steps``, and what it restores on the decoded sets: a net or n-rooks structure
+(``diffsampler_rt.structure``; at power-of-two grid sides >= ``structure_min_side``, and
+projected onto the clean-set prediction of the last ``structure_guidance`` solver steps), a
+few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing (``diffsampler_rt.spacing``; the
 coefficient comes from the training sets, ``python -m trainer spacing CONFIG``);
 they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
 they are edited in place rather than baked in at export.
@@ -20,9 +22,13 @@ from diffsampler_rt.solvers import SOLVERS
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None,
+                 structure_min_side: int | None = None, structure_guidance: int | None = None,
+                 sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None) -> dict:
-    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` / ``min_spacing`` of
-    the card in ``path`` (``"none"`` removes a structure or spacing); returns the card."""
+    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
+    ``structure_min_side`` and ``structure_guidance``) / ``sliced_ot`` / ``min_spacing`` of
+    the card in ``path`` (``"none"`` removes a structure, with its two settings, a sliced-OT
+    polish or a spacing); returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -40,15 +46,25 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     if steps is not None:
         card["default_steps"] = steps
     if structure == "none":
-        card.pop("structure", None)
+        for key in ("structure", "structure_min_side", "structure_guidance"):
+            card.pop(key, None)
     elif structure is not None:
         card["structure"] = structure
+    if structure_min_side is not None:
+        card["structure_min_side"] = structure_min_side
+    if structure_guidance is not None:
+        card["structure_guidance"] = structure_guidance
+    if sliced_ot == "none":
+        card.pop("sliced_ot", None)
+    elif sliced_ot is not None:
+        card["sliced_ot"] = sliced_ot
     if min_spacing == "none":
         card.pop("min_spacing", None)
     elif min_spacing is not None:
         card["min_spacing"] = min_spacing
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
-    # the runtime's own card checks (known structure, stratified embedding, spacing range)
+    # the runtime's own card checks (known structure, stratified embedding, integer
+    # structure settings, spacing range)
     # before saving; ModelFormatError is a ValueError
     parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
     onnx.save(model, str(path))

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from diffsampler_rt.schedule import alphas_cumprod, timesteps
-from diffsampler_rt.solvers import SOLVERS, ddim, dpmpp_2m, solve
+from diffsampler_rt.solvers import SOLVERS, ddim, dpmpp_2m, project_x0, solve
 
 AB = alphas_cumprod({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02, "num_steps": 1000})
 S2 = 0.3**2  # data ~ N(0, S2): the optimal eps predictor is linear in x
@@ -48,3 +48,14 @@ def test_solve_dispatch():
         solve("euler", eps, X, AB, ts)
     with pytest.raises(ValueError, match="noise source"):
         solve("ddpm", eps, X, AB, ts)
+
+
+def test_projection_guidance_replaces_the_clean_prediction():
+    ts = timesteps(1000, 10)
+    same = project_x0(eps, AB, lambda x0: x0, ts)
+    np.testing.assert_allclose(same(X, int(ts[3])), eps(X, int(ts[3])), rtol=1e-10, atol=1e-12)
+    target = np.full_like(X, 0.25)
+    late = project_x0(eps, AB, lambda x0: target, ts[-3:])
+    np.testing.assert_array_equal(late(X, int(ts[0])), eps(X, int(ts[0])))  # not guided
+    for fn in (ddim, dpmpp_2m):  # guided through the last step: the output is the projection
+        np.testing.assert_allclose(fn(late, X, AB, ts), target, atol=1e-9)

@@ -8,8 +8,9 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, structure
-from diffsampler_rt.structure import impose_dyadic_net
+from diffsampler_rt.structure import impose_dyadic_net, impose_n_rooks
 from trainer.stats import empty_elementary_fraction, t_value
+from trainer.stats.structure import stratified_projections
 
 
 def jittered(k: int, count: int, seed: int = 0) -> np.ndarray:
@@ -82,6 +83,70 @@ def test_card_structure_is_validated():
     ot = dict(diffsampler_rt.load("rank1").card)
     with pytest.raises(ModelFormatError, match="needs the stratified embedding"):
         parse_card({CARD_KEY: json.dumps({**ot, "structure": "dyadic_net"})}, "m")
+
+
+@pytest.mark.parametrize("k", [3, 8, 16])
+def test_n_rooks_stratifies_both_projections_and_keeps_cells(k):
+    pts = jittered(k, 6)
+    assert not stratified_projections(pts).any()
+    out = impose_n_rooks(pts, k)
+    assert out.shape == pts.shape and np.all((out >= 0) & (out < 1))
+    assert stratified_projections(out).all()
+    np.testing.assert_array_equal(np.floor(out * k), np.floor(pts * k))
+    # each coordinate goes to the nearest point of its new 1/n strip, a few strips at most
+    assert np.abs(out - pts).max() < 1 / k
+    np.testing.assert_array_equal(impose_n_rooks(out, k), out)  # idempotent
+    kept = np.floor(out * (k * k)) == np.floor(pts * (k * k))
+    np.testing.assert_array_equal(out[kept], pts[kept])  # a point in its strip is not moved
+
+
+def test_n_rooks_leaves_ldbn_sets_unchanged():
+    from trainer.samplers import sample
+    k = 16
+    ref = sample("ldbn", k * k, count=3, seed=2)
+    cell = (np.floor(ref[..., 1] * k) * k + np.floor(ref[..., 0] * k)).astype(int)
+    ordered = np.take_along_axis(ref, np.argsort(cell, axis=1)[..., None], axis=1)
+    np.testing.assert_array_equal(impose_n_rooks(ordered, k), ordered)
+    with pytest.raises(ValueError, match="one per grid cell"):
+        impose_n_rooks(ordered[:, ::-1], k)
+
+
+def test_n_rooks_card_min_side_and_guidance(tiny_onnx, tmp_path):
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 2, seed=4) for n in (64, 256)}
+    set_defaults(path, structure="n_rooks", structure_min_side=16)
+    m = diffsampler_rt.Model(path)
+    np.testing.assert_array_equal(m.generate(64, 2, seed=4), plain[64])  # k = 8 < 16
+    rooks = m.generate(256, 2, seed=4)
+    np.testing.assert_array_equal(rooks, impose_n_rooks(plain[256], 16))
+    card = set_defaults(path, structure_guidance=3)
+    assert (card["structure"], card["structure_min_side"], card["structure_guidance"]) == \
+        ("n_rooks", 16, 3)
+    m = diffsampler_rt.Model(path)
+    guided = m.generate(256, 2, seed=4)
+    assert stratified_projections(guided).all() and not np.array_equal(guided, rooks)
+    np.testing.assert_array_equal(m.generate(256, 2, seed=4, structure=False), plain[256])
+    np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 2, batch=1, seed=4))),
+                                  guided)
+    card = set_defaults(path, structure="none")
+    assert not {"structure", "structure_min_side", "structure_guidance"} & set(card)
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"structure_min_side": 16}, "'structure_min_side' needs a structure"),
+    ({"structure": "n_rooks", "structure_min_side": 0}, "must be an integer >= 1, got 0"),
+    ({"structure": "n_rooks", "structure_guidance": -1}, "must be an integer >= 0, got -1"),
+    ({"structure": "n_rooks", "structure_guidance": True}, "got True"),
+    ({"structure": "n_rooks", "structure_guidance": 2.5}, "got 2.5"),
+])
+def test_structure_settings_are_validated(extra, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = {**diffsampler_rt.load("sobol_owen").card, **extra}
+    card.pop("structure", None) if "structure" not in extra else None
+    with pytest.raises(ModelFormatError, match=message):
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
 
 
 def test_docstring_examples():

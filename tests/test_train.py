@@ -117,6 +117,26 @@ def test_second_stage_refuses_another_architecture(tiny_onnx, tmp_path):
                 progress=False)
 
 
+def test_second_stage_may_add_coordinate_bits(tiny_onnx, tmp_path):
+    """More coord bits than the source: the new input channels start at zero weight, so the
+    warm-started net computes the source's function (and fewer bits are refused)."""
+    from dataclasses import replace
+    from trainer.unet import UNet
+    from .conftest import TINY_ONNX_UNET
+    src = UNet(tiny_config(**TINY_ONNX_UNET).unet).eval()
+    src.load_state_dict(torch.load(tiny_onnx.with_suffix(".state")))
+    wider = {**TINY_ONNX_UNET, "coord_bits": TINY_ONNX_UNET["coord_bits"] + 2}
+    tr = Trainer(replace(tiny_config(**wider), init_from=str(tiny_onnx)), tmp_path / "a",
+                 progress=False)
+    x, t = torch.randn(3, 2, 8, 8), torch.tensor([3.0, 400.0, 900.0])
+    with torch.no_grad():
+        torch.testing.assert_close(tr.ema.eval()(x, t), src(x, t), rtol=0, atol=1e-6)
+    fewer = {**TINY_ONNX_UNET, "coord_bits": 1}
+    with pytest.raises(ValueError, match="architecture"):
+        Trainer(replace(tiny_config(**fewer), init_from=str(tiny_onnx)), tmp_path / "b",
+                progress=False)
+
+
 def test_bf16_autocast_trains(tmp_path):
     from dataclasses import replace
     cfg = replace(tiny_config(), bf16=True, steps=3)

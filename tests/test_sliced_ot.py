@@ -1,0 +1,103 @@
+"""The sliced-OT polish the runtime may finish SOT sets with (diffsampler_rt.sliced_ot)."""
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, sliced_ot
+from diffsampler_rt.sliced_ot import (disk_to_square, iterations_at, polish, settings_problem,
+                                      square_to_disk)
+
+
+def coarse_chi2(pts: np.ndarray, bins: int = 8) -> float:
+    """Chi-square of a bins x bins histogram vs uniform, averaged over sets."""
+    idx = np.minimum((pts * bins).astype(int), bins - 1)
+    counts = np.stack([np.bincount(i[:, 1] * bins + i[:, 0], minlength=bins * bins)
+                       for i in idx.reshape(-1, *pts.shape[-2:])])
+    e = pts.shape[-2] / bins**2
+    return float(((counts - e) ** 2 / e).sum(-1).mean())
+
+
+def test_concentric_maps_are_inverse():
+    p = np.random.default_rng(0).random((5, 300, 2))
+    d = square_to_disk(p)
+    assert np.all(np.hypot(d[..., 0], d[..., 1]) <= 1 + 1e-12)
+    np.testing.assert_allclose(disk_to_square(d), p, atol=1e-12)
+    np.testing.assert_allclose(square_to_disk(np.array([0.5, 0.5])), [0.0, 0.0])
+
+
+def test_polish_evens_out_white_noise_and_keeps_sets_apart():
+    pts = np.random.default_rng(1).random((3, 1024, 2))
+    rngs = [np.random.default_rng(s) for s in (5, 6, 7)]
+    out = polish(pts, 16, 64, rngs)
+    assert out.shape == pts.shape and out.dtype == np.float64
+    assert np.all(np.isfinite(out)) and np.all((out >= 0) & (out < 1))
+    # white noise: chi-square ~ 63 on 64 bins; SOT sets are far more even
+    assert coarse_chi2(pts) > 30 and coarse_chi2(out) < 0.2 * coarse_chi2(pts)
+    # one generator per set: a set's result does not depend on its batch
+    alone = polish(pts[1:2], 16, 64, [np.random.default_rng(6)])
+    np.testing.assert_array_equal(alone, out[1:2])
+    np.testing.assert_array_equal(polish(pts, 0, 64, rngs), disk_to_square(square_to_disk(pts)))
+
+
+def test_the_sampler_uses_the_same_update():
+    from trainer.samplers.sot import sot_disk
+    rng = np.random.default_rng(3)
+    x = sot_disk(64, 2, np.random.default_rng(3), iterations=3, directions=8)
+    rad, ang = np.sqrt(rng.random((2, 64))), 2 * np.pi * rng.random((2, 64))
+    y = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
+    base = np.arange(8) * (np.pi / 8)
+    for _ in range(3):
+        y = sliced_ot.sliced_step(y, base + rng.random() * (np.pi / 8))
+    np.testing.assert_array_equal(x, y)
+
+
+def test_iterations_per_size():
+    spec = {"directions": 64, "n": [256, 1024, 4096], "iterations": [0, 8, 16]}
+    assert [iterations_at(spec, n) for n in (64, 256, 512, 1024, 2048, 4096, 65536)] == \
+        [0, 0, 4, 8, 12, 16, 16]
+    assert iterations_at({"directions": 8, "iterations": 3}, 100) == 3
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"iterations": 4}, "must be"),
+    ({"directions": 64, "iterations": 4, "extra": 1}, "must be"),
+    ({"directions": 0, "iterations": 4}, "directions must be an integer from 1 to 1024, got 0"),
+    ({"directions": 64, "iterations": -1}, "iterations must be an integer >= 0, got -1"),
+    ({"directions": 64, "iterations": True}, "got True"),
+    ({"directions": 64, "n": [1024, 256], "iterations": [1, 2]}, "strictly increasing"),
+    ({"directions": 64, "n": [256], "iterations": [1, 2]}, "same length"),
+])
+def test_card_settings_are_validated(spec, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    assert message in settings_problem(spec)
+    card = {**diffsampler_rt.load("rank1").card, "sliced_ot": spec}
+    with pytest.raises(ModelFormatError, match="model card field 'sliced_ot'"):
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+
+
+def test_card_polish_is_applied(tiny_onnx, tmp_path):
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=2) for n in (64, 256)}
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "64:0,256:4",
+                        "--sliced-ot-directions", "16"]) == 0
+    m = diffsampler_rt.Model(path)
+    assert m.card["sliced_ot"] == {"directions": 16, "n": [64, 256], "iterations": [0, 4]}
+    np.testing.assert_array_equal(m.generate(64, 3, seed=2), plain[64])  # 0 iterations
+    polished = m.generate(256, 3, seed=2)
+    assert not np.allclose(polished, plain[256]) and np.all((polished >= 0) & (polished < 1))
+    np.testing.assert_array_equal(m.generate(256, 3, seed=2, structure=False), plain[256])
+    np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=2))),
+                                  polished)
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "1.5"]) == 2
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "none"]) == 0
+    assert "sliced_ot" not in diffsampler_rt.Model(path).card
+
+
+def test_docstring_examples():
+    assert doctest.testmod(sliced_ot).failed == 0
