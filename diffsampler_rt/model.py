@@ -214,7 +214,8 @@ class Model:
                                        self.card["structure"])
                 return encode_stratified(pts, k) * scale
 
-            eps_fn = project_x0(self.denoise, self.alpha_bar, project, ts[max(0, len(ts) - guided):])
+            eps_fn = project_x0(self.denoise, self.alpha_bar, project,
+                                ts[max(0, len(ts) - guided):])
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])

@@ -11,10 +11,11 @@ unchanged.
 
 A weaker structure, ``"n_rooks"``: both 1-d projections stratified (one point in every 1/n
 strip) on top of the one point per grid cell, i.e. a multi-jittered set. Low-discrepancy blue
-noise (LDBN) has it at power-of-two sides >= 16; a small net gets close (most points already
-sit in their own strip) but no set exactly. Inside each column of cells the k points take
-the k sub-columns of width 1/n in the order of their x (rows likewise for y), the 1-d optimal
-assignment; a point already alone in its strip keeps its coordinate.
+noise (LDBN) has it at power-of-two sides >= 16; a small net does not learn it (its points
+fall in the wrong 1/n strips of their cells: 86-92 % of them move). Inside each column of
+cells the k points take the k sub-columns of width 1/n in the order of their x (rows
+likewise for y), the 1-d optimal assignment; a point already alone in its strip keeps its
+coordinate.
 
 Only for stratified embeddings. The model card asks for one with ``"structure"``; it is
 imposed at power-of-two grid sides k >= ``"structure_min_side"`` (default 1): other sides are
@@ -71,7 +72,7 @@ def _rook_slots(frac: np.ndarray) -> np.ndarray:
 #: per structure: sub-strip choice, and whether a moved point keeps its offset inside the
 #: sub-strip (Owen-scrambled nets are uniform inside their strips, so the star discrepancy
 #: then matches the reference's) or goes to the nearest point of its new sub-strip (the
-#: least move; a net's n-rooks choice is far from the sampler's, most points move)
+#: least move: for n-rooks most of the network's points change strip)
 _STRUCTURES = {"dyadic_net": (_dyadic_slots, True), "n_rooks": (_rook_slots, False)}
 
 

@@ -51,7 +51,7 @@ def set_defaults_main(argv: list[str]) -> int:
             sliced = ({"directions": args.sliced_ot_directions, "n": table["n"],
                        "iterations": [int(k) for k in its]} if isinstance(table, dict)
                       else {"directions": args.sliced_ot_directions, "iterations": int(table)})
-        except ValueError:
+        except (ValueError, OverflowError):  # int(inf)
             print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
                   f"none, got {sliced!r}", file=sys.stderr)
             return 2
@@ -87,8 +87,9 @@ def structure_text(card: dict) -> str:
     """"n_rooks (k >= 16, guiding 5 steps)", "dyadic_net", "none"."""
     if "structure" not in card:
         return "none"
-    notes = ([f"k >= {card['structure_min_side']}"] if "structure_min_side" in card else []) \
-        + ([f"guiding {card['structure_guidance']} steps"] if card.get("structure_guidance") else [])
+    notes = [f"k >= {card['structure_min_side']}"] if "structure_min_side" in card else []
+    if card.get("structure_guidance"):
+        notes.append(f"guiding {card['structure_guidance']} steps")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

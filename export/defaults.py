@@ -4,8 +4,9 @@ The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no 
 ``steps``, and what it restores on the decoded sets: a net or n-rooks structure
 (``diffsampler_rt.structure``; at power-of-two grid sides >= ``structure_min_side``, and
 projected onto the clean-set prediction of the last ``structure_guidance`` solver steps), a
-few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing (``diffsampler_rt.spacing``; the
-coefficient comes from the training sets, ``python -m trainer spacing CONFIG``);
+few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing
+(``diffsampler_rt.spacing``; the coefficient comes from the training sets,
+``python -m trainer spacing CONFIG``);
 they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
 they are edited in place rather than baked in at export.
 """
