@@ -267,11 +267,19 @@ def main() -> None:
     # measured in separate runs; the report covers every model measured so far
     kept = ROOT / "benchmarks" / "results" / "speed.json"
     if kept.exists() and not a.fresh:
-        old = json.loads(kept.read_text())
-        merged = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()}}
-                  for m, r in old.items() if m not in results}
-        results = {**merged, **results}
+        results = merge_kept(json.loads(kept.read_text()), results)
     report(dict(sorted(results.items())), a)
+
+
+def merge_kept(old: dict, new: dict) -> dict:
+    """speed.json's kept results with this run's on top, size by size: a run over some
+    sizes of a model replaces those rows and keeps the model's others."""
+    out = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()}}
+           for m, r in old.items()}
+    for m, r in new.items():
+        rows = {**out.get(m, {}).get("rows", {}), **r["rows"]}
+        out[m] = {**r, "rows": dict(sorted(rows.items()))}
+    return out
 
 
 if __name__ == "__main__":

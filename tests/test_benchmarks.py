@@ -44,3 +44,14 @@ def test_post_processing_projections_reach_and_keep_the_structure():
     np.testing.assert_array_equal(project_to_net(owen), owen)            # a net stays put
     ldbn = sample("ldbn", 256, count=3, seed=1)
     np.testing.assert_array_equal(stratify_1d(ldbn), ldbn)
+
+
+def test_speed_results_merge_size_by_size():
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.speed import merge_kept
+    old = {"sot": {"sampler": "sot", "rows": {"256": {"alone_s": 1.0}, "4096": {"alone_s": 4.0}}},
+           "gbn": {"sampler": "gbn", "rows": {"1024": {"alone_s": 2.0}}}}
+    new = {"sot": {"sampler": "sot", "rows": {4096: {"alone_s": 5.0}}}}
+    merged = merge_kept(old, new)
+    assert merged["sot"]["rows"] == {256: {"alone_s": 1.0}, 4096: {"alone_s": 5.0}}
+    assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
