@@ -38,19 +38,23 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--sliced-ot", metavar="K|N:K,N:K,...|none",
                    help="finish with K sliced-OT iterations (SOT models); N:K pairs give K per "
                         "size (linear in log n between them, rounded); none: remove")
-    p.add_argument("--sliced-ot-directions", type=int, default=64, metavar="D",
-                   help="directions per sliced-OT iteration (default 64)")
+    p.add_argument("--sliced-ot-directions", type=int, metavar="D",
+                   help="directions per sliced-OT iteration (default 64; with --sliced-ot)")
     args = p.parse_args(argv)
     sliced = args.sliced_ot
+    if args.sliced_ot_directions is not None and (sliced is None or sliced == "none"):
+        print("error: --sliced-ot-directions needs --sliced-ot K or N:K,...", file=sys.stderr)
+        return 2
+    directions = 64 if args.sliced_ot_directions is None else args.sliced_ot_directions
     if sliced is not None and sliced != "none":
         try:
             table = parse_spacing(sliced)
             its = table["c"] if isinstance(table, dict) else [table]
             if any(k != int(k) for k in its):
                 raise ValueError(sliced)
-            sliced = ({"directions": args.sliced_ot_directions, "n": table["n"],
+            sliced = ({"directions": directions, "n": table["n"],
                        "iterations": [int(k) for k in its]} if isinstance(table, dict)
-                      else {"directions": args.sliced_ot_directions, "iterations": int(table)})
+                      else {"directions": directions, "iterations": int(table)})
         except (ValueError, OverflowError):  # int(inf)
             print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
                   f"none, got {sliced!r}", file=sys.stderr)

@@ -95,6 +95,9 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
     np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=2))),
                                   polished)
     assert export_main(["set-defaults", str(path), "--sliced-ot", "1.5"]) == 2
+    assert export_main(["set-defaults", str(path), "--sliced-ot-directions", "8"]) == 2
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "3"]) == 0
+    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 64, "iterations": 3}
     assert export_main(["set-defaults", str(path), "--sliced-ot", "none"]) == 0
     assert "sliced_ot" not in diffsampler_rt.Model(path).card
 
