@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from typing import Any, Mapping
 
+from . import per_size
 from .density import check_table
 from .errors import ModelFormatError
 from .schedule import betas
@@ -43,8 +44,7 @@ def spacing_problem(spec: Any) -> str | None:
                 or not ns or len(ns) != len(cs)):
             return (f"min_spacing table must be {{\"n\": [...], \"c\": [...]}} with lists of "
                     f"equal, non-zero length, got {spec!r}")
-        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in ns) \
-                or any(a >= b for a, b in zip(ns, ns[1:])):
+        if not per_size.sizes_ok(ns):
             return f"min_spacing table's n must be increasing positive integers, got {ns!r}"
         if not all(_coefficient_ok(c) for c in cs):
             return f"min_spacing table's c must be numbers in (0, {MAX_SPACING}), got {cs!r}"

@@ -21,6 +21,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from . import per_size
+
 #: most directions per iteration a card may ask for (each is a sort of all n points)
 MAX_DIRECTIONS = 1024
 
@@ -105,7 +107,7 @@ def iterations_at(spec: dict, n: int) -> int:
     number, or with ``spec["n"]`` a per-size table (linear in log n between its sizes,
     rounded; the end values beyond)."""
     if "n" in spec:
-        return int(round(float(np.interp(np.log(n), np.log(spec["n"]), spec["iterations"]))))
+        return int(round(per_size.at(spec["n"], spec["iterations"], n)))
     return int(spec["iterations"])
 
 
@@ -127,9 +129,8 @@ def settings_problem(spec) -> str | None:
         return None if _count(spec["iterations"], 0) else \
             f"'sliced_ot' iterations must be an integer >= 0, got {spec['iterations']!r}"
     sizes, its = spec["n"], spec["iterations"]
-    if not (isinstance(sizes, list) and isinstance(its, list) and sizes
-            and len(sizes) == len(its) and all(_count(v, 1) for v in sizes)
-            and all(_count(v, 0) for v in its) and all(np.diff(sizes) > 0)):
+    if not (per_size.sizes_ok(sizes) and isinstance(its, list) and len(sizes) == len(its)
+            and all(_count(v, 0) for v in its)):
         return (f"'sliced_ot' n and iterations must be lists of the same length, n strictly "
                 f"increasing sizes >= 1, iterations integers >= 0; got {sizes!r}, {its!r}")
     return None

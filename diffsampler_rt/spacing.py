@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import per_size
+
 _BELOW_ONE = np.nextafter(1.0, 0.0)
 #: pushes aim this much past r: pushing to exactly r converges slowly in dense sets (a push
 #: starts new close pairs with the neighbours, shortfalls shrink by ~2x a round), 1 % past r
@@ -31,7 +33,7 @@ _OVERSHOOT = 0.01
 def coefficient(spec: float | dict, n: int) -> float:
     """c at n points for a card's ``min_spacing``: a number, or a per-size table."""
     if isinstance(spec, dict):
-        return float(np.interp(np.log(n), np.log(spec["n"]), spec["c"]))
+        return per_size.at(spec["n"], spec["c"], n)
     return float(spec)
 
 

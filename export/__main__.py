@@ -48,21 +48,17 @@ def set_defaults_main(argv: list[str]) -> int:
     directions = 64 if args.sliced_ot_directions is None else args.sliced_ot_directions
     if sliced is not None and sliced != "none":
         try:
-            table = parse_spacing(sliced)
-            its = table["c"] if isinstance(table, dict) else [table]
-            if any(k != int(k) for k in its):
-                raise ValueError(sliced)
-            sliced = ({"directions": directions, "n": table["n"],
-                       "iterations": [int(k) for k in its]} if isinstance(table, dict)
-                      else {"directions": directions, "iterations": int(table)})
-        except (ValueError, OverflowError):  # int(inf)
+            table = parse_table(sliced, "iterations", _whole)
+            sliced = {"directions": directions,
+                      **(table if isinstance(table, dict) else {"iterations": table})}
+        except ValueError:
             print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
                   f"none, got {sliced!r}", file=sys.stderr)
             return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         try:
-            spacing = parse_spacing(spacing)
+            spacing = parse_table(spacing, "c", float)
         except ValueError:
             print(f"error: --min-spacing must be a number, N:C pairs separated by commas, or "
                   f"none, got {spacing!r}", file=sys.stderr)
@@ -107,14 +103,23 @@ def sliced_text(spec: dict | None) -> str:
     return f"{spec['iterations']} iterations x {spec['directions']} directions"
 
 
-def parse_spacing(text: str) -> float | dict:
-    """"0.6" -> 0.6; "64:0.7,1024:0.6" -> {"n": [64, 1024], "c": [0.7, 0.6]} (ValueError)."""
+def parse_table(text: str, key: str, value=float):
+    """A value, or N:V pairs as a per-size table (ValueError): with key "c",
+    "0.6" -> 0.6 and "64:0.7,1024:0.6" -> {"n": [64, 1024], "c": [0.7, 0.6]}."""
     if ":" not in text:
-        return float(text)
+        return value(text)
     pairs = [item.split(":") for item in text.split(",")]
     if any(len(p) != 2 for p in pairs):
         raise ValueError(text)
-    return {"n": [int(n) for n, _ in pairs], "c": [float(c) for _, c in pairs]}
+    return {"n": [int(n) for n, _ in pairs], key: [value(v) for _, v in pairs]}
+
+
+def _whole(text: str) -> int:
+    """"3" or "3.0" -> 3; ValueError for anything not a whole number (2.5, inf, nan)."""
+    v = float(text)
+    if not v.is_integer():
+        raise ValueError(text)
+    return int(v)
 
 
 def format_spacing(spec: float | dict | None) -> str:

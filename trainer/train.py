@@ -16,7 +16,7 @@ import torch
 from .config import TrainConfig
 from .data import Batches
 from .diffusion import Diffusion
-from .unet import UNet
+from .unet import UNet, widen_stem
 
 CHECKPOINT = "checkpoint.pt"
 LOG = "log.csv"
@@ -72,21 +72,9 @@ def initial_weights(cfg: TrainConfig) -> dict[str, torch.Tensor]:
         if not (more_bits and cfg.unet.coord_bits > src_cfg.unet.coord_bits):
             raise ValueError(f"init_from {cfg.init_from!r} has architecture {src_cfg.unet}, "
                              f"this config needs {cfg.unet}")
-        weights["stem.weight"] = _widen_stem(weights["stem.weight"], src_cfg.unet.coord_bits,
-                                             cfg.unet.coord_bits)
+        weights["stem.weight"] = widen_stem(weights["stem.weight"], src_cfg.unet.coord_bits,
+                                            cfg.unet.coord_bits)
     return weights
-
-
-def _widen_stem(w: torch.Tensor, bits: int, new_bits: int) -> torch.Tensor:
-    """Stem weights for ``new_bits`` coordinate bits from a net with ``bits`` (< new_bits):
-    the new channels get zero weights, so the warm-started net computes the same function
-    at step 0 and learns what the added bits are worth."""
-    # input channels: 2 offsets, then 4 groups (cols, rows, cols*rows, -cols*rows) of bits
-    out, _, kh, kw = w.shape
-    groups = w[:, 2:].reshape(out, 4, bits, kh, kw)
-    wide = w.new_zeros((out, 4, new_bits, kh, kw))
-    wide[:, :, :bits] = groups
-    return torch.cat([w[:, :2], wide.reshape(out, 4 * new_bits, kh, kw)], dim=1)
 
 
 class Trainer:

@@ -256,3 +256,15 @@ class UNet(nn.Module):
                 else:
                     h = layer(h, emb)
         return self.out(F.silu(self.out_norm(h)))
+
+
+def widen_stem(w: torch.Tensor, bits: int, new_bits: int) -> torch.Tensor:
+    """Stem weights for ``new_bits`` coordinate bits from a net with ``bits`` (< new_bits):
+    the new channels get zero weights, so a warm-started net computes the same function at
+    step 0 and learns what the added bits are worth."""
+    # input channels as UNet.forward stacks them: 2 offsets, then the 4 groups of
+    # UNet._coords (cols, rows, cols*rows, -cols*rows) of coord_bits each
+    out, _, kh, kw = w.shape
+    wide = w.new_zeros((out, 4, new_bits, kh, kw))
+    wide[:, :, :bits] = w[:, 2:].reshape(out, 4, bits, kh, kw)
+    return torch.cat([w[:, :2], wide.reshape(out, 4 * new_bits, kh, kw)], dim=1)
