@@ -6,8 +6,8 @@ Gaussian and Heaviside integration MSE and minimum distance with their relative
 differences. Each figure stands next to its noise floor: the same figure between two
 independent batches of reference sets (batch A is the one compared with the model).
 Structure checks: empty elementary intervals (sobol_owen), 1-d stratified projections
-(ldbn). Non-uniform models are measured after the exact Rosenblatt map of their density to
-the uniform square, plus a density check (chi-square of an 8 x 8 histogram of the unwarped
+(ldbn), the share of sets that are the reference's lattice (rank1, lattice). Non-uniform
+models are measured after the exact Rosenblatt map of their density to the uniform square, plus a density check (chi-square of an 8 x 8 histogram of the unwarped
 points; its expected value is 63 for a set that follows the density).
 
 Reference sets and their statistics are cached under ~/.cache/diffsampler/reference (they
@@ -41,7 +41,9 @@ import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
                                seed_curve)
+from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from trainer.samplers import SLOW  # noqa: E402
+from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import (Gaussians, Heavisides, empty_elementary_fraction,  # noqa: E402
                            integration_mse, l2_star, min_distance, ot_energy, radial_spectrum,
@@ -52,6 +54,8 @@ SIZES = (64, 256, 576, 1024, 4096)
 TARGET_MAE = {"poisson_disk": 0.055, "gbn": 0.032, "sot": 0.007, "sot_32": 0.007,
               "ldbn": 0.006, "sobol_owen": 0.004, "rank1": 0.17, "lattice": 0.17}
 #: per-set statistics whose means must agree within TOL_MEAN (min distance: TOL_MIND)
+#: the lattice samplers' generator choice per size
+GENERATORS = {"rank1": maxmin_generator, "lattice": p2_generator}
 STATS = ("ot_energy", "l2_star", "gauss_mse", "heaviside_mse", "min_distance")
 TOL_MEAN, TOL_MIND = 0.05, 0.10
 INTEGRANDS = 512  # per family; fixed seeds so every set sees the same integrands
@@ -181,6 +185,10 @@ def evaluate(pool, name: str, a) -> dict:
         if sampler == "ldbn":
             row["strat"] = (float(stratified_projections(gen).mean()),
                             float(stratified_projections(ref_a).mean()))
+        if sampler in GENERATORS:  # is it the reference's lattice (generator)?
+            g = GENERATORS[sampler](n)
+            row["lattice"] = (float(np.mean(fit_rank1_lattice(gen)[0] == g)),
+                              float(np.mean(fit_rank1_lattice(ref_a)[0] == g)))
         if unwarp:
             row["chi2"] = (float(chi2_density(gu).mean()), float(chi2_density(ru_a).mean()))
         res["rows"][n] = row
@@ -291,6 +299,11 @@ def model_card_text(c: dict) -> str:
 
 
 def _structure_text(c: dict) -> str:
+    if c.get("structure") == "rank1_lattice":
+        sides = c.get("structure_sides")
+        where = (" at n = " + ", ".join(str(k * k) for k in sides) if sides else "")
+        return ("; each set replaced by the rank-1 lattice whose short dual vectors carry most "
+                f"of its power{where} (diffsampler_rt.lattice)")
     what = {"dyadic_net": "the (0, m, 2)-net structure",
             "n_rooks": "1-d stratified projections (n-rooks)"}.get(c.get("structure"))
     if what is None:
@@ -384,6 +397,9 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
             if "strat" in row:
                 extra = (f"1-d stratified {100 * row['strat'][0]:.0f} % of sets "
                          f"(ref {100 * row['strat'][1]:.0f} %)")
+            if "lattice" in row:
+                extra = (f"reference's lattice in {100 * row['lattice'][0]:.0f} % of sets "
+                         f"(ref {100 * row['lattice'][1]:.0f} %)")
             if "chi2" in row:
                 extra = f"density chi2 {row['chi2'][0]:.0f} (ref {row['chi2'][1]:.0f}, ideal 63)"
             sets = (f"{row['count']} ({row['spectrum_count']} for the spectrum)"

@@ -14,7 +14,7 @@ from .errors import ModelFormatError
 from .schedule import betas
 from .sliced_ot import settings_problem as sliced_problem
 from .solvers import SOLVERS
-from .structure import STRUCTURES
+from .structure import ANY_SIDE, STRUCTURES
 
 FORMAT_KEY = "diffsampler.format"
 CARD_KEY = "diffsampler.card"
@@ -88,7 +88,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if structure is not None and structure not in STRUCTURES:
         raise ModelFormatError(f"{source}: unknown structure {structure!r}; this runtime "
                                f"knows {list(STRUCTURES)}")
-    if structure is not None and card["embedding"] != "stratified":
+    if (structure is not None and structure not in ANY_SIDE
+            and card["embedding"] != "stratified"):
         raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
                                f"embedding, the card says {card['embedding']!r}")
     for key, low in (("structure_min_side", 1), ("structure_guidance", 0)):
@@ -100,6 +101,15 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
                                    f">= {low}, got {value!r}")
+    sides = card.get("structure_sides")
+    if sides is not None and structure is None:
+        raise ModelFormatError(f"{source}: model card field 'structure_sides' needs a structure")
+    if sides is not None and not per_size.sizes_ok(sides):
+        raise ModelFormatError(f"{source}: model card field 'structure_sides' must be a list of "
+                               f"increasing positive integers (grid sides), got {sides!r}")
+    if structure in ANY_SIDE and card.get("structure_guidance"):
+        raise ModelFormatError(f"{source}: structure {structure!r} cannot guide the solver "
+                               "(structure_guidance must be 0 or absent)")
     if "sliced_ot" in card and (problem := sliced_problem(card["sliced_ot"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):

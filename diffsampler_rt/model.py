@@ -131,7 +131,9 @@ class Model:
             :mod:`diffsampler_rt.structure`), ``"structure": "n_rooks"`` (ldbn: both 1-d
             projections stratified at power-of-two k >= 16, also imposed on the clean-set
             prediction of the last ``"structure_guidance"`` solver steps so that the net
-            arranges its sets around it), ``"sliced_ot"`` (SOT models: a few of the
+            arranges its sets around it), ``"structure": "rank1_lattice"`` (lattice
+            models: each set replaced by the rank-1 lattice it is closest to, read off its
+            power spectrum; :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,

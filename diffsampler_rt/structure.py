@@ -17,24 +17,37 @@ cells the k points take the k sub-columns of width 1/n in the order of their x (
 likewise for y), the 1-d optimal assignment; a point already alone in its strip keeps its
 coordinate.
 
-Only for stratified embeddings. The model card asks for one with ``"structure"``; it is
-imposed at power-of-two grid sides k >= ``"structure_min_side"`` (default 1): other sides are
-not nets, and the base-2 samplers with n-rooks projections lack them there too.
+These two are for stratified embeddings only and hold at power-of-two grid sides: the model
+card asks for one with ``"structure"``; it is imposed at power-of-two sides k >=
+``"structure_min_side"`` (default 1): other sides are not nets, and the base-2 samplers with
+n-rooks projections lack them there too.
+
+A third, ``"rank1_lattice"``, holds at every size and for either embedding: the set is
+replaced by the rank-1 lattice it is closest to (:mod:`diffsampler_rt.lattice`). Each n has
+its own lattice, and where the network does not make the reference's, the nearest lattice can
+integrate far worse than the network's set; ``"structure_sides": [8, 16, ...]`` limits any
+structure to the grid sides listed (those where it was measured to help).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .grid import strip_bounds
+from .lattice import nearest_rank1_lattice
 
 #: card values of ``"structure"`` the runtime knows
-STRUCTURES = ("dyadic_net", "n_rooks")
+STRUCTURES = ("dyadic_net", "n_rooks", "rank1_lattice")
+#: those that hold at every grid side and need no stratified embedding
+ANY_SIDE = ("rank1_lattice",)
 
 
 def applies(card: dict, k: int) -> bool:
-    """Whether the card asks for a structure that exists at grid side k."""
-    return (card.get("structure") in STRUCTURES and k & (k - 1) == 0
-            and k >= card.get("structure_min_side", 1))
+    """Whether the card asks for a structure that exists at grid side k (and, with
+    ``"structure_sides"``, lists k among the sides it is imposed at)."""
+    name = card.get("structure")
+    return (name in STRUCTURES and (name in ANY_SIDE or k & (k - 1) == 0)
+            and k >= card.get("structure_min_side", 1)
+            and k in card.get("structure_sides", [k]))
 
 
 def _dyadic_slots(frac: np.ndarray) -> np.ndarray:
@@ -155,6 +168,8 @@ def _checked(points: np.ndarray, k: int) -> np.ndarray:
 def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net") -> np.ndarray:
     """The structure ``name`` without the checks, for the runtime's generation loop
     (a stratified decode already puts one point per cell in row-major order)."""
+    if name == "rank1_lattice":
+        return nearest_rank1_lattice(pts)
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns

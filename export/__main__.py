@@ -1,7 +1,8 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
-[--structure dyadic_net|n_rooks|none] [--structure-min-side K] [--structure-guidance L]
+[--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K] [--structure-guidance L]
+[--structure-sides K,K,...]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D]] [--min-spacing C|N:C,...|none]``:
 change the sampling defaults in an exported model's card.
 
@@ -24,13 +25,16 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--solver", choices=list(SOLVERS))
     p.add_argument("--steps", type=int)
     p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
-                   help="structure imposed on generated sets at power-of-two grid sides "
-                        "(none: remove)")
+                   help="structure imposed on generated sets: dyadic_net and n_rooks at "
+                        "power-of-two grid sides of stratified models, rank1_lattice at every "
+                        "size (none: remove)")
     p.add_argument("--structure-min-side", type=int, metavar="K",
                    help="impose the structure only at grid sides k >= K")
     p.add_argument("--structure-guidance", type=int, metavar="L",
                    help="also project the clean-set prediction of the last L solver steps "
                         "onto the structure (0: only the finished sets)")
+    p.add_argument("--structure-sides", metavar="K,K,...",
+                   help="impose the structure only at these grid sides")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -55,6 +59,14 @@ def set_defaults_main(argv: list[str]) -> int:
             print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
                   f"none, got {sliced!r}", file=sys.stderr)
             return 2
+    sides = args.structure_sides
+    if sides is not None:
+        try:
+            sides = [int(v) for v in sides.split(",")]
+        except ValueError:
+            print(f"error: --structure-sides must be grid sides separated by commas, got "
+                  f"{sides!r}", file=sys.stderr)
+            return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         try:
@@ -71,7 +83,8 @@ def set_defaults_main(argv: list[str]) -> int:
         card = set_defaults(args.model, solver=args.solver, steps=args.steps,
                             structure=args.structure,
                             structure_min_side=args.structure_min_side,
-                            structure_guidance=args.structure_guidance, sliced_ot=sliced,
+                            structure_guidance=args.structure_guidance,
+                            structure_sides=sides, sliced_ot=sliced,
                             min_spacing=spacing)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -84,10 +97,12 @@ def set_defaults_main(argv: list[str]) -> int:
 
 
 def structure_text(card: dict) -> str:
-    """"n_rooks (k >= 16, guiding 5 steps)", "dyadic_net", "none"."""
+    """"n_rooks (k >= 16, guiding 5 steps)", "rank1_lattice (k in 8, 16, 32)", "none"."""
     if "structure" not in card:
         return "none"
     notes = [f"k >= {card['structure_min_side']}"] if "structure_min_side" in card else []
+    if "structure_sides" in card:
+        notes.append("k in " + ", ".join(map(str, card["structure_sides"])))
     if card.get("structure_guidance"):
         notes.append(f"guiding {card['structure_guidance']} steps")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")

@@ -3,7 +3,8 @@
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
 ``steps``, and what it restores on the decoded sets: a net or n-rooks structure
 (``diffsampler_rt.structure``; at power-of-two grid sides >= ``structure_min_side``, and
-projected onto the clean-set prediction of the last ``structure_guidance`` solver steps), a
+projected onto the clean-set prediction of the last ``structure_guidance`` solver steps), the
+nearest rank-1 lattice (``diffsampler_rt.lattice``), a
 few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing
 (``diffsampler_rt.spacing``; the coefficient comes from the training sets,
 ``python -m trainer spacing CONFIG``);
@@ -24,12 +25,13 @@ from diffsampler_rt.solvers import SOLVERS
 def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
+                 structure_sides: list[int] | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
-    ``structure_min_side`` and ``structure_guidance``) / ``sliced_ot`` / ``min_spacing`` of
-    the card in ``path`` (``"none"`` removes a structure, with its two settings, a sliced-OT
-    polish or a spacing); returns the card."""
+    ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
+    ``min_spacing`` of the card in ``path`` (``"none"`` removes a structure, with its three
+    settings, a sliced-OT polish or a spacing); returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -47,7 +49,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     if steps is not None:
         card["default_steps"] = steps
     if structure == "none":
-        for key in ("structure", "structure_min_side", "structure_guidance"):
+        for key in ("structure", "structure_min_side", "structure_guidance", "structure_sides"):
             card.pop(key, None)
     elif structure is not None:
         card["structure"] = structure
@@ -55,6 +57,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         card["structure_min_side"] = structure_min_side
     if structure_guidance is not None:
         card["structure_guidance"] = structure_guidance
+    if structure_sides is not None:
+        card["structure_sides"] = structure_sides
     if sliced_ot == "none":
         card.pop("sliced_ot", None)
     elif sliced_ot is not None:

@@ -1,0 +1,157 @@
+"""The nearest rank-1 lattice (diffsampler_rt.lattice) and the lattice models' card structure."""
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, lattice
+from diffsampler_rt.lattice import fit_rank1_lattice, nearest_rank1_lattice, rank1_lattice
+from trainer.samplers.lattice import maxmin_generator, p2_generator, shifted, korobov
+from trainer.stats import min_distance
+
+
+def as_set(pts: np.ndarray) -> np.ndarray:
+    """Points sorted lexicographically (x, then y): set equality up to order."""
+    return pts[np.lexsort((pts[:, 1], pts[:, 0]))]
+
+
+@pytest.mark.parametrize("n", [16, 64, 100, 576, 1024])
+@pytest.mark.parametrize("choose", [maxmin_generator, p2_generator])
+def test_exact_lattices_are_recovered(n, choose):
+    g = choose(n)
+    sets = shifted(korobov(n, g), 3, np.random.default_rng(n))
+    gen, shift, fit = fit_rank1_lattice(sets)
+    assert np.all(gen == g) and np.all(fit > 0.95)  # the power comes from a gridded FFT
+    out = nearest_rank1_lattice(sets)
+    for a, b in zip(out, sets):
+        np.testing.assert_allclose(as_set(a), as_set(b), atol=1e-12)
+
+
+def test_transposed_lattice_is_the_same_set():
+    n, g = 1024, 271
+    pts = rank1_lattice(n, g, (0.4, 3.7))[:, ::-1]  # y is now the index axis
+    gen, _, _ = fit_rank1_lattice(pts)
+    assert int(gen) == pow(g, -1, n)
+    np.testing.assert_allclose(as_set(nearest_rank1_lattice(pts)), as_set(pts), atol=1e-12)
+
+
+def test_jittered_lattice_snaps_back():
+    n, g = 1024, 271
+    exact = shifted(korobov(n, g), 4, np.random.default_rng(0))
+    noisy = (exact + np.random.default_rng(1).normal(0, 0.15 / np.sqrt(n), exact.shape)) % 1
+    assert min_distance(noisy).mean() < 0.7 * min_distance(exact).mean()
+    gen, _, fit = fit_rank1_lattice(noisy)
+    assert np.all(gen == g) and np.all((fit > 0.3) & (fit < 1))
+    out = nearest_rank1_lattice(noisy)
+    np.testing.assert_allclose(min_distance(out), min_distance(exact), rtol=1e-12)
+    # the shift follows the set: every snapped point is close to a point of the exact lattice
+    for a, b in zip(out, exact):
+        assert cKDTree(b, boxsize=1.0).query(a)[0].max() < 0.05 / np.sqrt(n)
+
+
+def test_any_set_gives_a_valid_lattice():
+    n = 576
+    pts = np.random.default_rng(2).random((3, n, 2))
+    gen, _, fit = fit_rank1_lattice(pts)
+    assert np.all(np.gcd(gen, n) == 1) and np.all(fit < 0.05)
+    out = nearest_rank1_lattice(pts)
+    assert out.shape == pts.shape and out.dtype == np.float64
+    assert np.all((out >= 0) & (out < 1)) and np.isfinite(out).all()
+    for s in out:  # both projections are permutations of one shifted 1/n grid
+        for c in (0, 1):
+            assert len(np.unique(np.floor(s[:, c] * n + 1e-9 - s[:, c].min() * n))) == n
+
+
+def test_single_set_matches_batch():
+    pts = np.random.default_rng(3).random((2, 64, 2))
+    g, shift, fit = fit_rank1_lattice(pts)
+    g0, shift0, fit0 = fit_rank1_lattice(pts[0])
+    assert int(g0) == int(g[0]) and float(fit0) == float(fit[0])
+    np.testing.assert_array_equal(shift0, shift[0])
+    np.testing.assert_array_equal(nearest_rank1_lattice(pts[1]), nearest_rank1_lattice(pts)[1])
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ValueError, match=r"shape \(n, 2\) or \(sets, n, 2\).*got \(5, 3\)"):
+        fit_rank1_lattice(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="n >= 4"):
+        fit_rank1_lattice(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="coprime to n = 64, got 6"):
+        rank1_lattice(64, 6)
+
+
+def test_card_structure_at_every_side(tiny_onnx, tmp_path):
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 2, seed=6) for n in (25, 64)}
+    set_defaults(path, structure="rank1_lattice")
+    m = diffsampler_rt.Model(path)
+    for n in (25, 64):  # not only power-of-two sides
+        np.testing.assert_array_equal(m.generate(n, 2, seed=6), nearest_rank1_lattice(plain[n]))
+        np.testing.assert_array_equal(m.generate(n, 2, seed=6, structure=False), plain[n])
+    with pytest.raises(ValueError, match="cannot guide the solver"):
+        set_defaults(path, structure_guidance=2)
+    # limited to listed grid sides: elsewhere the network's sets
+    card = set_defaults(path, structure_sides=[5])
+    assert card["structure_sides"] == [5]
+    m = diffsampler_rt.Model(path)
+    np.testing.assert_array_equal(m.generate(25, 2, seed=6), nearest_rank1_lattice(plain[25]))
+    np.testing.assert_array_equal(m.generate(64, 2, seed=6), plain[64])
+    assert "structure_sides" not in set_defaults(path, structure="none")
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"structure_sides": [8]}, "'structure_sides' needs a structure"),
+    ({"structure": "rank1_lattice", "structure_sides": [16, 8]}, "increasing positive"),
+    ({"structure": "rank1_lattice", "structure_sides": 8}, "got 8"),
+    ({"structure": "rank1_lattice", "structure_sides": [0, 8]}, "got \\[0, 8\\]"),
+])
+def test_structure_sides_are_validated(extra, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = {k: v for k, v in diffsampler_rt.load("rank1").card.items()
+            if not k.startswith("structure")}
+    with pytest.raises(ModelFormatError, match=message):
+        parse_card({CARD_KEY: json.dumps({**card, **extra})}, "m")
+
+
+def test_card_structure_needs_no_stratified_embedding():
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = dict(diffsampler_rt.load("rank1").card)
+    assert card["embedding"] == "ot" and card["structure"] == "rank1_lattice"
+    parse_card({CARD_KEY: json.dumps(card)}, "m")
+    with pytest.raises(ModelFormatError, match="cannot guide the solver"):
+        parse_card({CARD_KEY: json.dumps({**card, "structure_guidance": 3})}, "m")
+
+
+@pytest.mark.parametrize("name, choose", [("rank1", maxmin_generator), ("lattice", p2_generator)])
+def test_bundled_models_give_the_reference_lattice_at_trained_sizes(name, choose):
+    # measured: every set at n = 64, 256 and 1024 (benchmarks/results/fidelity.md)
+    assert diffsampler_rt.load(name).card["structure_sides"][:2] == [8, 16]
+    for n in (64, 256):
+        sets = diffsampler_rt.generate(name, n, 2, seed=0)
+        gen, _, fit = fit_rank1_lattice(sets)
+        assert np.all(gen == choose(n)) and np.all(fit > 0.95)
+
+
+def test_docstring_examples():
+    assert doctest.testmod(lattice).failed == 0
+
+
+def test_set_defaults_cli_lattice_structure(tiny_onnx, tmp_path, capsys):
+    from export.__main__ import main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    assert main(["set-defaults", str(path), "--structure", "rank1_lattice",
+                 "--structure-sides", "8,16,24"]) == 0
+    assert "structure rank1_lattice (k in 8, 16, 24)" in capsys.readouterr().out
+    assert diffsampler_rt.Model(path).card["structure_sides"] == [8, 16, 24]
+    assert main(["set-defaults", str(path), "--structure-sides", "8,x"]) == 2
+    assert "--structure-sides must be grid sides separated by commas, got '8,x'" \
+        in capsys.readouterr().err
+    assert main(["set-defaults", str(path), "--structure-sides", "16,8"]) == 2
+    assert "must be a list of increasing positive integers" in capsys.readouterr().err
