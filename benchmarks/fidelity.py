@@ -7,8 +7,9 @@ differences. Each figure stands next to its noise floor: the same figure between
 independent batches of reference sets (batch A is the one compared with the model).
 Structure checks: empty elementary intervals (sobol_owen), 1-d stratified projections
 (ldbn), the share of sets that are the reference's lattice (rank1, lattice). Non-uniform
-models are measured after the exact Rosenblatt map of their density to the uniform square, plus a density check (chi-square of an 8 x 8 histogram of the unwarped
-points; its expected value is 63 for a set that follows the density).
+models are measured after the exact Rosenblatt map of their density to the uniform square,
+plus a density check (chi-square of an 8 x 8 histogram of the unwarped points; its expected
+value is 63 for a set that follows the density).
 
 Reference sets and their statistics are cached under ~/.cache/diffsampler/reference (they
 are deterministic in their seeds); generated sets are made in the run. Each model's results
@@ -53,9 +54,9 @@ SIZES = (64, 256, 576, 1024, 4096)
 #: issue 4: at most half of the seed paper's own net's spectrum MAE at n = 1024
 TARGET_MAE = {"poisson_disk": 0.055, "gbn": 0.032, "sot": 0.007, "sot_32": 0.007,
               "ldbn": 0.006, "sobol_owen": 0.004, "rank1": 0.17, "lattice": 0.17}
-#: per-set statistics whose means must agree within TOL_MEAN (min distance: TOL_MIND)
 #: the lattice samplers' generator choice per size
 GENERATORS = {"rank1": maxmin_generator, "lattice": p2_generator}
+#: per-set statistics whose means must agree within TOL_MEAN (min distance: TOL_MIND)
 STATS = ("ot_energy", "l2_star", "gauss_mse", "heaviside_mse", "min_distance")
 TOL_MEAN, TOL_MIND = 0.05, 0.10
 INTEGRANDS = 512  # per family; fixed seeds so every set sees the same integrands

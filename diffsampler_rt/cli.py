@@ -119,8 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="default: the model card's")
     g.add_argument("--no-structure", action="store_true",
-                   help="return the network's sets as decoded: no net or n-rooks structure "
-                        "(sobol_owen, ldbn), no minimum spacing (blue-noise models)")
+                   help="return the network's sets as decoded: no net, n-rooks or lattice "
+                        "structure (sobol_owen, ldbn, rank1, lattice), no sliced-OT polish "
+                        "(SOT models), no minimum spacing (blue-noise models)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")

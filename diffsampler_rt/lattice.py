@@ -14,7 +14,9 @@ deposited on a fine grid), the best g wins, and the shift u follows from the pha
 set's Fourier transform at a reduced basis of L*. The set is then replaced by L + u.
 
 Which lattice comes out is the network's choice: at its trained sizes it is the reference
-sampler's; at other sizes the lattice whose short-range order the network's set has.
+sampler's; at other sizes the lattice whose short-range order the network's set has. The
+runtime then shifts it uniformly at random, as the reference sampler does: the network's own
+shifts are close to uniform but not exactly.
 """
 from __future__ import annotations
 
@@ -159,10 +161,14 @@ def rank1_lattice(n: int, generator: int, shift: tuple[float, float] = (0.0, 0.0
     return np.minimum(np.stack([x, y], axis=-1), _BELOW_ONE)
 
 
-def nearest_rank1_lattice(points: np.ndarray) -> np.ndarray:
+def nearest_rank1_lattice(points: np.ndarray,
+                          rngs: list[np.random.Generator] | None = None) -> np.ndarray:
     """Replace each set (..., n, 2) by the rank-1 lattice it is closest to.
 
-    Points come back in lattice order (i = 0 .. n-1 along x), not matched to the input's.
+    The lattice keeps the set's own shift, or with ``rngs`` (one generator per set) gets a
+    uniformly random one, as a randomly shifted lattice rule has it (its estimates are
+    unbiased only then). Points come back in lattice order (i = 0 .. n-1 along x), not
+    matched to the input's.
 
     Examples
     --------
@@ -178,5 +184,10 @@ def nearest_rank1_lattice(points: np.ndarray) -> np.ndarray:
     flat = pts.reshape((-1,) + pts.shape[-2:])
     g, shift, _ = fit_rank1_lattice(flat)
     n = pts.shape[-2]
+    if rngs is not None:
+        if len(rngs) != len(flat):
+            raise ValueError(f"rngs must give one generator per set ({len(flat)}), got "
+                             f"{len(rngs)}")
+        shift = np.stack([r.random(2) * n for r in rngs])  # uniform on the torus
     out = np.stack([rank1_lattice(n, int(gi), si) for gi, si in zip(g, shift)])
     return out.reshape(pts.shape)

@@ -133,7 +133,9 @@ class Model:
             prediction of the last ``"structure_guidance"`` solver steps so that the net
             arranges its sets around it), ``"structure": "rank1_lattice"`` (lattice
             models: each set replaced by the rank-1 lattice it is closest to, read off its
-            power spectrum; :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
+            power spectrum, under a uniformly random shift, at the grid sides in
+            ``"structure_sides"``;
+            :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
@@ -229,8 +231,8 @@ class Model:
             grid = x / scale
             bar.update(len(sub))
             pts = decode(grid, stratified=self.card["embedding"] == "stratified")
-            if imposed:
-                pts = impose_unchecked(pts, k, self.card["structure"])
+            if imposed:  # a lattice's random shift comes after the solver's draws
+                pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub)
             if spacing is not None:

@@ -165,11 +165,13 @@ def _checked(points: np.ndarray, k: int) -> np.ndarray:
     return pts
 
 
-def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net") -> np.ndarray:
+def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net",
+            rngs: list[np.random.Generator] | None = None) -> np.ndarray:
     """The structure ``name`` without the checks, for the runtime's generation loop
-    (a stratified decode already puts one point per cell in row-major order)."""
+    (a stratified decode already puts one point per cell in row-major order); ``rngs``, one
+    per set, draw the lattices' random shifts."""
     if name == "rank1_lattice":
-        return nearest_rank1_lattice(pts)
+        return nearest_rank1_lattice(pts, rngs)
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns

@@ -1,8 +1,8 @@
 """``python -m export CHECKPOINT -o MODEL.onnx``: export and check parity with torch.
 
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
-[--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K] [--structure-guidance L]
-[--structure-sides K,K,...]
+[--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
+[--structure-guidance L] [--structure-sides K,K,...]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D]] [--min-spacing C|N:C,...|none]``:
 change the sampling defaults in an exported model's card.
 

@@ -66,6 +66,21 @@ def test_any_set_gives_a_valid_lattice():
             assert len(np.unique(np.floor(s[:, c] * n + 1e-9 - s[:, c].min() * n))) == n
 
 
+def test_random_shifts_are_uniform():
+    from scipy import stats
+    n, g = 64, 19
+    sets = np.broadcast_to(rank1_lattice(n, g), (400, n, 2))
+    rngs = [np.random.default_rng(s) for s in range(400)]
+    out = nearest_rank1_lattice(sets, rngs)
+    assert np.all(fit_rank1_lattice(out)[0] == g)
+    # the point with the smallest x sits at (a / n, y): a uniform in [0, 1), y uniform
+    first = out[np.arange(400), np.argmin(out[..., 0], axis=1)]
+    assert stats.kstest(first[:, 0] * n, "uniform").pvalue > 0.01
+    assert stats.kstest(first[:, 1], "uniform").pvalue > 0.01
+    with pytest.raises(ValueError, match=r"one generator per set \(400\), got 2"):
+        nearest_rank1_lattice(sets, rngs[:2])
+
+
 def test_single_set_matches_batch():
     pts = np.random.default_rng(3).random((2, 64, 2))
     g, shift, fit = fit_rank1_lattice(pts)
@@ -88,20 +103,30 @@ def test_card_structure_at_every_side(tiny_onnx, tmp_path):
     from export.defaults import set_defaults
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    plain = {n: diffsampler_rt.Model(path).generate(n, 2, seed=6) for n in (25, 64)}
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (25, 64)}
     set_defaults(path, structure="rank1_lattice")
     m = diffsampler_rt.Model(path)
     for n in (25, 64):  # not only power-of-two sides
-        np.testing.assert_array_equal(m.generate(n, 2, seed=6), nearest_rank1_lattice(plain[n]))
-        np.testing.assert_array_equal(m.generate(n, 2, seed=6, structure=False), plain[n])
+        out = m.generate(n, 3, seed=6)
+        # the network's lattice under a random shift: same generator, same set up to a shift
+        g = fit_rank1_lattice(plain[n])[0]
+        np.testing.assert_array_equal(fit_rank1_lattice(out)[0], g)
+        for a, b in zip(out, nearest_rank1_lattice(plain[n])):
+            moved = (a - a[0] + b[0]) % 1
+            assert cKDTree(b, boxsize=1.0).query(moved)[0].max() < 1e-9
+        np.testing.assert_array_equal(m.generate(n, 3, seed=6), out)  # same seed, same sets
+        np.testing.assert_array_equal(  # batching does not change a set
+            np.concatenate(list(m.iter_sets(n, 3, batch=1, seed=6))), out)
+        np.testing.assert_array_equal(m.generate(n, 3, seed=6, structure=False), plain[n])
+    out_25 = m.generate(25, 3, seed=6)
     with pytest.raises(ValueError, match="cannot guide the solver"):
         set_defaults(path, structure_guidance=2)
     # limited to listed grid sides: elsewhere the network's sets
     card = set_defaults(path, structure_sides=[5])
     assert card["structure_sides"] == [5]
     m = diffsampler_rt.Model(path)
-    np.testing.assert_array_equal(m.generate(25, 2, seed=6), nearest_rank1_lattice(plain[25]))
-    np.testing.assert_array_equal(m.generate(64, 2, seed=6), plain[64])
+    np.testing.assert_array_equal(m.generate(25, 3, seed=6), out_25)
+    np.testing.assert_array_equal(m.generate(64, 3, seed=6), plain[64])
     assert "structure_sides" not in set_defaults(path, structure="none")
 
 
