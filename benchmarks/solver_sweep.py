@@ -108,16 +108,22 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "solver_sweep.md")
+    p.add_argument("--append", action="store_true",
+                   help="add this run's sections to --out instead of replacing it")
     a = p.parse_args()
     models = a.models or diffsampler_rt.list_models()
-    lines = ["# Few-step sampling: solvers x steps vs the reference sampler", "",
-             f"`python benchmarks/solver_sweep.py --sets {a.sets}` on "
-             f"{dt.date.today().isoformat()} ({os.cpu_count()} cores; other jobs may have "
-             "shared the machine, so times are indicative: benchmarks/results/speed.md has the "
-             "timings). Each figure: generated vs reference batch A; the first row is an "
-             "independent reference batch B (the noise floor). Relative differences of the "
-             f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} %).",
-             ""]
+    command = ("`python benchmarks/solver_sweep.py " + " ".join(sys.argv[1:]) + "` on "
+               f"{dt.date.today().isoformat()} ({os.cpu_count()} cores)")
+    if a.append and a.out.exists():
+        lines = a.out.read_text().rstrip("\n").split("\n") + [
+            "", f"Sections below: {command}.", ""]
+    else:
+        lines = ["# Few-step sampling: solvers x steps vs the reference sampler", "",
+                 f"{command}; other jobs may have shared the machine, so times are indicative: "
+                 "benchmarks/results/speed.md has the timings. Each figure: generated vs "
+                 "reference batch A; the first row is an independent reference batch B (the "
+                 "noise floor). Relative differences of the means; ✗: beyond "
+                 f"±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} %).", ""]
     with ProcessPoolExecutor(a.workers) as pool:
         for name in models:
             for n in a.sizes:
