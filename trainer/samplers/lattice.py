@@ -6,11 +6,13 @@ from functools import lru_cache
 
 import numpy as np
 
+from diffsampler_rt.lattice import rank1_lattice
+
 
 def korobov(n: int, g: int) -> np.ndarray:
-    """The unshifted lattice {(i/n, (i*g mod n)/n)}, shape (n, 2), computed exactly."""
-    i = np.arange(n, dtype=np.int64)
-    return np.stack([i, (i * g) % n], axis=1).astype(np.float64) / n
+    """The unshifted lattice {(i/n, (i*g mod n)/n)}, shape (n, 2), computed exactly (the
+    runtime's construction, which the lattice models' structure also uses)."""
+    return rank1_lattice(n, g)
 
 
 def _coprime_generators(n: int) -> np.ndarray:
