@@ -198,6 +198,42 @@ def evaluate(pool, name: str, a) -> dict:
     return res
 
 
+def reproduced(model, row: dict, n: int, seed: int, unwarp, sets: int = 4) -> bool:
+    """Whether ``model`` makes the sets a kept ``row`` was measured on: the first ``sets``
+    generated sets' minimum distances (kept per set to 6 digits) agree to 1e-4.
+
+    An equivalent graph (e.g. windowed attention wider than the grid) sums in another order:
+    coordinates move by ~1e-7, which iterative finishing (sliced-OT, spacing) can grow to
+    ~2e-5 in a minimum distance; an independent set differs by several per cent."""
+    kept = np.asarray(row["min_distance"]["gen_sets"][:sets])
+    gen = model.generate(n, len(kept), seed=seed)
+    return bool(np.allclose(min_distance(unwarp(gen) if unwarp else gen), kept,
+                            rtol=1e-4, atol=0))
+
+
+def merge_kept(r: dict, out: Path, seed: int) -> dict:
+    """``r`` with the rows of the kept result for this model at the sizes not measured now,
+    each checked to be reproduced by the current file (else SystemExit: re-run that size).
+    A row taken over records the file and run it came from under ``"measured"``."""
+    path = out / "fidelity" / f"{r['name']}.json"
+    if not path.exists():
+        return r
+    old = json.loads(path.read_text())
+    model, unwarp = diffsampler_rt.load(r["name"]), UNWARP.get(r["sampler"])
+    rows = {}
+    for n, row in ((int(n), row) for n, row in old["rows"].items()):
+        if n in r["rows"]:
+            continue
+        if old.get("settings", {}).get("seed") != seed or not reproduced(model, row, n, seed, unwarp):
+            raise SystemExit(f"{r['name']}: the kept row at n = {n} is not reproduced by the "
+                             "current model file; measure that size again")
+        row.setdefault("measured", {"date": old["date"], "settings": old["settings"],
+                                    "model_sha256": old["model_sha256"]})
+        rows[n] = row
+    rows.update(r["rows"])
+    return {**r, "rows": dict(sorted(rows.items()))}
+
+
 def settings(a) -> dict:
     return {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
             "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
@@ -299,6 +335,22 @@ def model_card_text(c: dict) -> str:
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 
 
+def _taken_over(r: dict) -> list[str]:
+    """A note on rows measured on an earlier file of the model (``--merge``)."""
+    old = {n: row["measured"] for n, row in r["rows"].items() if "measured" in row}
+    if not old:
+        return []
+    by_run: dict[tuple, list[int]] = {}
+    for n, m in old.items():
+        by_run.setdefault((m["date"], m["model_sha256"][:12]), []).append(n)
+    new = [n for n in r["rows"] if n not in old]
+    runs = "; ".join(f"n = {', '.join(map(str, ns))} on {d} with an earlier file of this model "
+                     f"(sha256 {h}...)" for (d, h), ns in sorted(by_run.items()))
+    return ["", f"Measured: n = {', '.join(map(str, new))} on {r['date']} with the current file; "
+            f"{runs}, whose generated sets the current file reproduces (the first 4 sets' "
+            "minimum distances agree to 1e-4; `--merge`)."]
+
+
 def _structure_text(c: dict) -> str:
     if c.get("structure") == "rank1_lattice":
         sides = c.get("structure_sides")
@@ -330,7 +382,9 @@ def _spacing_text(spec: float | dict) -> str:
 
 
 def report(results: list[dict], missing: list[str], out: Path) -> None:
-    runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results})
+    runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results}
+                  | {(row["measured"]["date"], json.dumps(row["measured"]["settings"], sort_keys=True))
+                     for r in results for row in r["rows"].values() if "measured" in row})
     how = "; ".join(
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
@@ -409,6 +463,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
                          + " | ".join(_fmt_rel(row[k], TOL_MIND if k == "min_distance" else TOL_MEAN)
                                       for k in STATS)
                          + f" | {extra} | {row['gen_ms']:.0f} | {row['ref_ms']:.0f} |")
+        lines += _taken_over(r)
         lines += ["", f"![{r['name']}](fidelity/{r['name']}.png)"]
     lines.append("")
     (out / "fidelity.md").write_text("\n".join(lines))
@@ -441,7 +496,7 @@ def plot(r: dict, path: Path) -> None:
             ax.plot(x, curve, lw=0.8, color="k", alpha=0.5, label="seed paper")
         ax.set(title=f"{r['name']}: radial spectrum, n = {n}", xlabel="|f| / sqrt(n)")
         ax.legend(fontsize=8)
-    row = r["rows"][sizes[0]] if sizes else next(iter(r["rows"].values()))
+    row = next((r["rows"][n] for n in (*sizes, *r["rows"]) if "example_gen" in r["rows"][n]))
     for ax, key, title in ((axes[-2], "example_ref", "reference"), (axes[-1], "example_gen", "learned")):
         p = row[key]
         ax.scatter(p[:, 0], p[:, 1], s=1.5, c="k")
@@ -468,6 +523,10 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    p.add_argument("--merge", action="store_true",
+                   help="keep the model's earlier rows at the sizes not given, where the "
+                        "current file reproduces their sets (e.g. after a re-export that "
+                        "only changes big grids)")
     p.add_argument("--report-only", action="store_true",
                    help="only rebuild fidelity.md from the kept per-model results")
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
@@ -486,7 +545,8 @@ def main() -> None:
                           f"({time.perf_counter() - t:.0f} s)", flush=True)
             return
         for m in models:
-            save_result(evaluate(pool, m, a), a.out)
+            r = evaluate(pool, m, a)
+            save_result(merge_kept(r, a.out, a.seed) if a.merge else r, a.out)
     report(*kept_results(a.out, bundled), a.out)
     print(f"wrote {a.out / 'fidelity.md'}")
 

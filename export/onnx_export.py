@@ -129,6 +129,8 @@ def export_model(net: UNet, card: dict[str, Any], path: str | Path, *,
             output_names=["eps"], external_data=False, verbose=False,
             dynamic_shapes={"x": {0: batch, 2: side, 3: side}, "t": {0: batch}})
     model = program.model_proto
+    for node in model.graph.node:  # torch's per-node stack traces: ~0.5 MB of debug text
+        del node.metadata_props[:]
     if fp16_weights:
         model = _weights_to_fp16(model, set(net.state_dict()))
     card = dict(card, weights="fp16" if fp16_weights else "fp32")

@@ -1,4 +1,5 @@
 """The benchmark scripts run end to end (tiny sizes)."""
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +23,20 @@ def test_fidelity_report_runs(tmp_path):
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     assert "| 64 | 3 |" in (tmp_path / "out" / "fidelity.md").read_text()
+    # --merge measures 256 now and keeps the 64 row, which the same file reproduces
+    merge = [sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen", "--sizes", "256",
+             "--sets", "3", "--workers", "1", "--merge", "--out", str(tmp_path / "out")]
+    res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "| 64 | 3 |" in md and "| 256 | 3 |" in md and "n = 64 on " in md
+    # a kept row the current file does not reproduce is refused, not merged
+    kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
+    r = json.loads(kept.read_text())
+    r["rows"]["64"]["min_distance"]["gen_sets"][0] *= 1.01
+    kept.write_text(json.dumps(r))
+    res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode != 0 and "n = 64 is not reproduced" in res.stderr
     res = subprocess.run([sys.executable, "benchmarks/violins.py", "--results",
                           str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0, res.stderr

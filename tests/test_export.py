@@ -58,6 +58,8 @@ def test_self_contained_file_with_card(tiny_onnx):
                 "embedding", "offset_scale", "padding", "licence", "provenance", "weights"):
         assert key in card, key
     assert card["weights"] == "fp16"
+    # no per-node debug text (torch's stack traces) in the shipped file
+    assert not any(node.metadata_props for node in model.graph.node)
     assert card["trained_sizes"] == [16, 64]
     assert card["train_devices"] == ["cpu"]
 
