@@ -326,7 +326,9 @@ def model_card_text(c: dict) -> str:
              + (", bf16 autocast" if cfg.get("bf16") else "")
              + (f", from the weights of `{cfg['init_from']}`" if cfg.get("init_from") else ""))
     return (f"sampler `{c['sampler']}`, embedding `{c['embedding']}`. Data: {data}. "
-            f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. Sampling: "
+            f"Net: {arch}. Training: {train}, seed {cfg.get('seed')}. "
+            + (f"Distillation: {c['provenance']}. " if c.get("distillation") else "")
+            + "Sampling: "
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
             + _structure_text(c)
             + (f"; then {_sliced_text(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
@@ -336,19 +338,26 @@ def model_card_text(c: dict) -> str:
 
 
 def _taken_over(r: dict) -> list[str]:
-    """A note on rows measured on an earlier file of the model (``--merge``)."""
+    """A note on rows kept from an earlier run (``--merge``), of this file or an earlier one."""
     old = {n: row["measured"] for n, row in r["rows"].items() if "measured" in row}
     if not old:
         return []
     by_run: dict[tuple, list[int]] = {}
     for n, m in old.items():
-        by_run.setdefault((m["date"], m["model_sha256"][:12]), []).append(n)
+        by_run.setdefault((m["date"], m["model_sha256"]), []).append(n)
     new = [n for n in r["rows"] if n not in old]
-    runs = "; ".join(f"n = {', '.join(map(str, ns))} on {d} with an earlier file of this model "
-                     f"(sha256 {h}...)" for (d, h), ns in sorted(by_run.items()))
-    return ["", f"Measured: n = {', '.join(map(str, new))} on {r['date']} with the current file; "
-            f"{runs}, whose generated sets the current file reproduces (the first 4 sets' "
-            "minimum distances agree to 1e-4; `--merge`)."]
+    same = [f"n = {', '.join(map(str, ns))} in an earlier run on {d}"
+            for (d, h), ns in sorted(by_run.items()) if h == r["model_sha256"]]
+    other = [f"n = {', '.join(map(str, ns))} on {d} with an earlier file of this model "
+             f"(sha256 {h[:12]}...)" for (d, h), ns in sorted(by_run.items())
+             if h != r["model_sha256"]]
+    text = f"Measured: n = {', '.join(map(str, new))} on {r['date']} with the current file"
+    if same:
+        text += "; " + "; ".join(same) + " with the same file"
+    if other:
+        text += ("; " + "; ".join(other) + ", whose generated sets the current file reproduces "
+                 "(the first 4 sets' minimum distances agree to 1e-4)")
+    return ["", text + " (`--merge`)."]
 
 
 def _structure_text(c: dict) -> str:

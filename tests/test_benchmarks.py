@@ -29,7 +29,7 @@ def test_fidelity_report_runs(tmp_path):
     res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "fidelity.md").read_text()
-    assert "| 64 | 3 |" in md and "| 256 | 3 |" in md and "n = 64 on " in md
+    assert "| 64 | 3 |" in md and "| 256 | 3 |" in md and "n = 64 in an earlier run on " in md
     # a kept row the current file does not reproduce is refused, not merged
     kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
     r = json.loads(kept.read_text())

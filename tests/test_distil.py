@@ -174,4 +174,10 @@ def test_bundled_students_were_distilled_from_the_bundled_teachers():
             continue
         d = card["distillation"]
         teacher = diffsampler_rt.load(d["teacher"])
-        assert d["teacher_sha1"] == network_hash(teacher.path), (name, d["teacher"])
+        if d["teacher_sha1"] != network_hash(teacher.path):
+            # allowed only for a teacher re-exported with attention windows at least as wide as
+            # its attention level at every trained side (k / 4 cells): the same function there,
+            # so distilling from it again makes the same trajectories up to float rounding
+            window = teacher.card["config"]["unet"].get("attention_window")
+            assert "re-exported" in teacher.card["provenance"] and window, (name, d["teacher"])
+            assert max(teacher.card["trained_sizes"]) <= (4 * window) ** 2, (name, window)
