@@ -198,9 +198,13 @@ def evaluate(pool, name: str, a) -> dict:
     return res
 
 
+#: relative agreement of the kept per-set minimum distances that counts as the same sets
+REPRODUCE_RTOL = 1e-4
+
+
 def reproduced(model, row: dict, n: int, seed: int, unwarp, sets: int = 4) -> bool:
     """Whether ``model`` makes the sets a kept ``row`` was measured on: the first ``sets``
-    generated sets' minimum distances (kept per set to 6 digits) agree to 1e-4.
+    generated sets' minimum distances (kept per set to 6 digits) agree to REPRODUCE_RTOL.
 
     An equivalent graph (e.g. windowed attention wider than the grid) sums in another order:
     coordinates move by ~1e-7, which iterative finishing (sliced-OT, spacing) can grow to
@@ -208,7 +212,7 @@ def reproduced(model, row: dict, n: int, seed: int, unwarp, sets: int = 4) -> bo
     kept = np.asarray(row["min_distance"]["gen_sets"][:sets])
     gen = model.generate(n, len(kept), seed=seed)
     return bool(np.allclose(min_distance(unwarp(gen) if unwarp else gen), kept,
-                            rtol=1e-4, atol=0))
+                            rtol=REPRODUCE_RTOL, atol=0))
 
 
 def merge_kept(r: dict, out: Path, seed: int) -> dict:
@@ -356,7 +360,7 @@ def _taken_over(r: dict) -> list[str]:
         text += "; " + "; ".join(same) + " with the same file"
     if other:
         text += ("; " + "; ".join(other) + ", whose generated sets the current file reproduces "
-                 "(the first 4 sets' minimum distances agree to 1e-4)")
+                 f"(the first 4 sets' minimum distances agree to {REPRODUCE_RTOL:.0e})".replace("e-0", "e-"))
     return ["", text + " (`--merge`)."]
 
 
