@@ -50,13 +50,18 @@ def _tables(table: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return np.linspace(0.0, 1.0, xc.size), xc, yc
 
 
-def _column_cdf(x: np.ndarray, yc: np.ndarray) -> np.ndarray:
-    """(m, B + 1): the conditional CDF knots of y at each x (columns blended linearly)."""
-    bins = yc.shape[0]
+def _column_weights(x: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per x: the two columns whose y-CDFs are blended there and the second one's weight."""
     c = np.clip(x * bins - 0.5, 0.0, bins - 1.0)  # position in column-centre units
     i = np.minimum(c.astype(np.int64), max(bins - 2, 0))
-    w = (c - i)[:, None]
-    return yc[i] * (1 - w) + yc[np.minimum(i + 1, bins - 1)] * w
+    return i, np.minimum(i + 1, bins - 1), c - i
+
+
+def _column_cdf_at(yc: np.ndarray, cols: tuple, j: np.ndarray) -> np.ndarray:
+    """The blended conditional CDF knot j at each point (one knot per point: no
+    (points, bins) array, so big sets and fine tables stay cheap)."""
+    i, i1, w = cols
+    return yc[i, j] * (1 - w) + yc[i1, j] * w
 
 
 def unwarp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
@@ -65,12 +70,12 @@ def unwarp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     flat = p.reshape(-1, 2)
     u = np.interp(flat[:, 0], knots, xc)
-    col = _column_cdf(flat[:, 0], yc)
     bins = yc.shape[0]
+    cols = _column_weights(flat[:, 0], bins)
     s = np.clip(flat[:, 1], 0.0, 1.0) * bins
     j = np.minimum(s.astype(np.int64), bins - 1)
-    rows = np.arange(len(flat))
-    v = col[rows, j] + (s - j) * (col[rows, j + 1] - col[rows, j])
+    lo, hi = _column_cdf_at(yc, cols, j), _column_cdf_at(yc, cols, j + 1)
+    v = lo + (s - j) * (hi - lo)
     out = np.clip(np.column_stack([u, v]), 0.0, np.nextafter(1.0, 0.0))
     return out.reshape(p.shape)
 
@@ -88,12 +93,17 @@ def warp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     flat = p.reshape(-1, 2)
     x = np.interp(flat[:, 0], xc, knots)
-    col = _column_cdf(x, yc)
     bins = yc.shape[0]
+    cols = _column_weights(x, bins)
     v = np.clip(flat[:, 1], 0.0, 1.0)
-    j = np.clip((col <= v[:, None]).sum(axis=1) - 1, 0, bins - 1)
-    rows = np.arange(len(flat))
-    lo, hi = col[rows, j], col[rows, j + 1]
+    # the last knot j with CDF_j <= v (knot 0 is 0 <= v), by bisection over the knots
+    j, top = np.zeros(len(flat), dtype=np.int64), np.full(len(flat), bins, dtype=np.int64)
+    while np.any(top > j):
+        mid = (j + top + 1) // 2
+        below = _column_cdf_at(yc, cols, mid) <= v
+        j, top = np.where(below, mid, j), np.where(below, top, mid - 1)
+    j = np.minimum(j, bins - 1)
+    lo, hi = _column_cdf_at(yc, cols, j), _column_cdf_at(yc, cols, j + 1)
     y = (j + (v - lo) / (hi - lo)) / bins
     out = np.clip(np.column_stack([x, y]), 0.0, np.nextafter(1.0, 0.0))
     return out.reshape(p.shape)

@@ -37,6 +37,16 @@ class DataConfig:
     #: small set's intensity need not be the density: the leftmost point of a 64-point SOT
     #: ramp set sits near y = 0.5 in nearly every set)
     density_sides: tuple[int, ...] = ()
+    #: how the density is fitted (trainer.density.FITS): "histogram" (density_bins bins) or
+    #: "legendre" (a smooth series, degree by cross-validation up to density_max_degree,
+    #: tabulated on density_bins x density_bins cells)
+    density_fit: str = "histogram"
+    density_max_degree: int = 16
+
+    def __post_init__(self) -> None:
+        from .density import FITS
+        if self.density_fit not in FITS:
+            raise ValueError(f"density_fit must be one of {FITS}, got {self.density_fit!r}")
 
 
 @dataclass(frozen=True)

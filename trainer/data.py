@@ -13,7 +13,7 @@ from diffsampler_rt.density import unwarp
 from diffsampler_rt.grid import decode
 
 from .config import DataConfig
-from .density import fit_density
+from .density import fit_density, fit_density_legendre
 from .embedding import embed, symmetries
 from .samplers import TOROIDAL, sample
 
@@ -74,7 +74,8 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
 
 
 def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
-               sides: tuple[int, ...] = ()) -> tuple[dict[int, np.ndarray], dict[str, list]]:
+               sides: tuple[int, ...] = (), fit: str = "histogram",
+               max_degree: int = 16) -> tuple[dict[int, np.ndarray], dict[str, list]]:
     """Fit the density to the pooled sets of ``sides`` (default: the largest side) and
     re-embed every pool after the density's map to the uniform square."""
     sides = sides or (max(pools),)
@@ -82,7 +83,10 @@ def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
         raise ValueError(f"density_sides {list(sides)} must be among the pooled sides "
                          f"{sorted(pools)}")
     points = {k: decode(p) for k, p in pools.items()}
-    table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
+    if fit == "legendre":
+        table, _ = fit_density_legendre([points[k] for k in sides], bins, max_degree=max_degree)
+    else:
+        table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
     return ({k: embed(unwarp(p, table), embedding).astype(np.float32)
              for k, p in points.items()}, table)
 
@@ -109,7 +113,8 @@ class Batches:
                 raise ValueError("density_bins needs a pool at every size (pool_sizes > 0) "
                                  "and shifts = 1: the density is fitted to the pooled sets")
             self.pools, self.density = uniformise(self.pools, cfg.embedding, cfg.density_bins,
-                                                  cfg.density_sides)
+                                                  cfg.density_sides, cfg.density_fit,
+                                                  cfg.density_max_degree)
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:
         """One float32 array (B_k, 2, k, k) per size, offsets times the offset scale."""

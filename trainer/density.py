@@ -1,14 +1,57 @@
 """Fit the density of a non-uniform sampler from its example sets (see diffsampler_rt.density).
 
-The training sets are pooled into a bins x bins histogram; its x-marginal and per-column
-y-CDFs make the table that :func:`diffsampler_rt.density.unwarp` uses to take the sets
-to the uniform square before the grid embedding, and that the runtime inverts.
+Two fits, both ending in the table that :func:`diffsampler_rt.density.unwarp` uses to take
+the sets to the uniform square before the grid embedding, and that the runtime inverts:
+
+- ``"histogram"``: the pooled points on a bins x bins histogram. Simple, but its density is
+  constant per bin and noisy where it is low: on the SOT ramp (p = 2x, 12 bins) the map
+  moves points by up to 0.04 (2.5 point spacings at n = 4096), which the net then learns
+  as part of the pattern.
+- ``"legendre"``: a smooth fit, the tensor-product Legendre series of the density (the
+  projection estimator: each coefficient is the mean of its basis function over the
+  points), its degree chosen by two-fold cross-validation over the example sets, then
+  integrated exactly over the cells of a fine table. Blue-noise and low-discrepancy sets
+  integrate polynomials far better than random points, so the coefficients are precise
+  and the fit converges like the density's series, not like a histogram's bins.
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
+from numpy.polynomial import legendre
 
 from diffsampler_rt.density import MAX_BINS
+
+#: density fits the trainer knows (DataConfig.density_fit)
+FITS = ("histogram", "legendre")
+
+
+def _check(points: np.ndarray, bins: int, floor: float) -> np.ndarray:
+    if not isinstance(bins, int) or not 1 <= bins <= MAX_BINS:
+        raise ValueError(f"bins must be an integer in [1, {MAX_BINS}], got {bins!r}")
+    if not floor > 0:
+        raise ValueError(f"floor must be > 0, got {floor!r}")
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(p) == 0 or not np.all((p >= 0) & (p <= 1)):
+        raise ValueError("fitting a density needs a non-empty set of points in [0, 1]^2")
+    return p
+
+
+def _table(mass: np.ndarray, floor: float) -> dict[str, list]:
+    """The card's table from the mass of each of the bins x bins cells (x index first).
+
+    ``floor`` (a fraction of the mean cell mass) is added to every cell, so that both CDFs
+    increase strictly and the maps invert even where the density vanishes.
+    """
+    bins = mass.shape[0]
+    mass = np.maximum(mass, 0.0) + floor * mass.sum() / bins**2
+    x_cdf = np.concatenate([[0.0], np.cumsum(mass.sum(axis=1))]) / mass.sum()
+    y_cdf = np.concatenate([np.zeros((bins, 1)), np.cumsum(mass, axis=1)], axis=1)
+    y_cdf /= y_cdf[:, -1:]
+    x_cdf[-1] = 1.0  # exact ends despite rounding in the sums
+    y_cdf[:, -1] = 1.0
+    return {"x_cdf": x_cdf.tolist(), "y_cdf": y_cdf.tolist()}
 
 
 def fit_density(points: np.ndarray, bins: int, *, floor: float = 1e-3) -> dict[str, list]:
@@ -17,19 +60,89 @@ def fit_density(points: np.ndarray, bins: int, *, floor: float = 1e-3) -> dict[s
     ``floor`` (a fraction of the mean count per bin) is added to every bin, so that both
     CDFs increase strictly and the maps invert even where the examples left a bin empty.
     """
-    if not isinstance(bins, int) or not 1 <= bins <= MAX_BINS:
-        raise ValueError(f"bins must be an integer in [1, {MAX_BINS}], got {bins!r}")
-    if not floor > 0:
-        raise ValueError(f"floor must be > 0, got {floor!r}")
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(p) == 0 or not np.all((p >= 0) & (p <= 1)):
-        raise ValueError("fit_density needs a non-empty set of points in [0, 1]^2")
+    p = _check(points, bins, floor)
     edges = np.linspace(0.0, 1.0, bins + 1)
     hist, _, _ = np.histogram2d(p[:, 0], p[:, 1], bins=[edges, edges])
-    hist += floor * len(p) / bins**2
-    x_cdf = np.concatenate([[0.0], np.cumsum(hist.sum(axis=1))]) / hist.sum()
-    y_cdf = np.concatenate([np.zeros((bins, 1)), np.cumsum(hist, axis=1)], axis=1)
-    y_cdf /= y_cdf[:, -1:]
-    x_cdf[-1] = 1.0  # exact ends despite rounding in the sums
-    y_cdf[:, -1] = 1.0
-    return {"x_cdf": x_cdf.tolist(), "y_cdf": y_cdf.tolist()}
+    return _table(hist, floor)
+
+
+def _basis(t: np.ndarray, degree: int) -> np.ndarray:
+    """(..., degree + 1): the Legendre polynomials orthonormal on [0, 1] at t."""
+    return legendre.legvander(2.0 * t - 1.0, degree) * np.sqrt(2.0 * np.arange(degree + 1) + 1)
+
+
+def _cell_integrals(bins: int, degree: int) -> np.ndarray:
+    """(bins, degree + 1): the integral of each orthonormal polynomial over each 1/bins cell."""
+    edges = np.linspace(-1.0, 1.0, bins + 1)
+    out = np.empty((bins, degree + 1))
+    for i in range(degree + 1):
+        c = np.zeros(degree + 1)
+        c[i] = np.sqrt(2.0 * i + 1)
+        prim = legendre.legval(edges, legendre.legint(c, lbnd=-1.0)) / 2  # dx = d(2x-1) / 2
+        out[:, i] = np.diff(prim)
+    return out
+
+
+def legendre_coefficients(sets: Sequence[np.ndarray], degree: int) -> np.ndarray:
+    """(degree + 1, degree + 1): the mean over the points of phi_i(x) phi_j(y)."""
+    p = np.concatenate([np.asarray(s, dtype=np.float64).reshape(-1, 2) for s in sets])
+    return np.einsum("pi,pj->ij", _basis(p[:, 0], degree), _basis(p[:, 1], degree)) / len(p)
+
+
+def choose_degree(sets: Sequence[np.ndarray], max_degree: int,
+                  folds: int = 8) -> tuple[int, np.ndarray, np.ndarray]:
+    """The degree D <= ``max_degree`` of the series, by cross-validation over the sets.
+
+    The sets are dealt into ``folds`` folds; with coefficients a from one fold and b from the
+    others, the sum over i, j <= D of a^2 - 2 a b estimates |f_a - f|^2 - |f|^2 (b is
+    unbiased and independent of a). Of the degrees whose mean estimate over the folds is
+    within one standard error of the best, the lowest is taken (the one-standard-error rule):
+    the sets' own edge effects are systematic, so the estimate keeps falling slowly with the
+    degree, and a high-degree series rings across the whole square to follow them.
+
+    Returns D, and the mean estimate and its standard error for every degree 0 .. max_degree.
+    """
+    folds = min(folds, len(sets))
+    if folds < 2:
+        raise ValueError(f"cross-validation needs at least 2 example sets, got {len(sets)}")
+    risks = []
+    for f in range(folds):
+        a = legendre_coefficients(sets[f::folds], max_degree)
+        b = legendre_coefficients([s for i, s in enumerate(sets) if i % folds != f], max_degree)
+        term = a * a - 2 * a * b
+        risks.append([term[:d + 1, :d + 1].sum() for d in range(max_degree + 1)])
+    risks = np.asarray(risks)
+    mean, se = risks.mean(axis=0), risks.std(axis=0, ddof=1) / np.sqrt(folds)
+    best = int(np.argmin(mean))
+    return int(np.flatnonzero(mean <= mean[best] + se[best])[0]), mean, se
+
+
+def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: int = 24,
+                         floor: float = 1e-3) -> tuple[dict[str, list], int]:
+    """Smooth density table (``bins`` x ``bins``) of example sets: the Legendre series of the
+    density, degree by cross-validation (:func:`choose_degree`), integrated over the cells.
+
+    ``sets``: a sequence of (n, 2) sets, or (count, n, 2) arrays of them (sets of different
+    sizes may be mixed). Where the series dips below zero the cell gets the floor.
+
+    Returns the table and the chosen degree.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> u = np.random.default_rng(0).random((64, 256, 2))
+    >>> ramp = np.stack([np.sqrt(u[..., 0]), u[..., 1]], -1)  # density 2x
+    >>> table, degree = fit_density_legendre(ramp, 32, max_degree=6)
+    >>> round(table["x_cdf"][16], 2)  # F_X(1/2) = 1/4
+    0.25
+    """
+    flat = [np.asarray(s, dtype=np.float64).reshape(-1, np.shape(s)[-2], 2) for s in sets] \
+        if not isinstance(sets, np.ndarray) else [np.asarray(sets, dtype=np.float64)]
+    each = [s for group in flat for s in group]
+    _check(np.concatenate([s.reshape(-1, 2) for s in each]), bins, floor)
+    if not isinstance(max_degree, int) or not 0 <= max_degree <= 64:
+        raise ValueError(f"max_degree must be an integer in [0, 64], got {max_degree!r}")
+    degree = choose_degree(each, max_degree)[0]
+    c = legendre_coefficients(each, degree)
+    cells = _cell_integrals(bins, degree)
+    return _table(cells @ c @ cells.T, floor), degree
