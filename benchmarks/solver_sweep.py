@@ -36,13 +36,28 @@ SETTINGS = (("ddim", 50), ("ddim", 20), ("ddim", 10), ("dpmpp_2m", 20), ("dpmpp_
             ("dpmpp_2m", 10), ("dpmpp_2m", 8), ("dpmpp_2m", 6))
 
 
-def parse_setting(text: str) -> tuple[str, int]:
-    solver, _, steps = text.partition(":")
-    return solver, int(steps)
+def parse_setting(text: str) -> tuple:
+    """``solver:steps`` or ``solver:steps:gL`` (L: the card's structure_guidance overridden,
+    the last L solver steps projected; ldbn-like models)."""
+    solver, _, rest = text.partition(":")
+    steps, _, guidance = rest.partition(":")
+    if guidance and not (guidance.startswith("g") and guidance[1:].isdigit()):
+        raise argparse.ArgumentTypeError(f"setting {text!r}: the third part must be gL, e.g. g3")
+    return (solver, int(steps)) + ((int(guidance[1:]),) if guidance else ())
+
+
+def load_with(name: str, guidance: int | None) -> "diffsampler_rt.Model":
+    """The model, its card's structure_guidance replaced when ``guidance`` is given."""
+    if guidance is None:
+        return diffsampler_rt.load(name)
+    model = diffsampler_rt.Model(diffsampler_rt.load(name).path)  # a private copy
+    model.card = {**model.card, "structure_guidance": guidance}
+    return model
 
 
 def compare(pool, sampler: str, n: int, runs, a, refs=None) -> list[dict]:
-    """Rows for ``runs`` = [(label, model, solver, steps)], all of reference ``sampler``.
+    """Rows for ``runs`` = [(label, model, solver, steps[, guidance])], all of reference
+    ``sampler``.
 
     ``refs``: the reference batch sizes (fidelity.py's options; default its defaults, so
     its cached sets are reused); ``a.sets`` caps the sets compared.
@@ -57,8 +72,8 @@ def compare(pool, sampler: str, n: int, runs, a, refs=None) -> list[dict]:
     rows = [{"setting": "reference B (floor)", "mae": spectrum_mae(sb, sa), "ms": float("nan"),
              "count": count,
              **{k: float(stats_b[k][:count].mean() / stats_a[k][:count].mean() - 1) for k in STATS}}]
-    for label, name, solver, steps in runs:
-        model = diffsampler_rt.load(name)
+    for label, name, solver, steps, *guidance in runs:
+        model = load_with(name, guidance[0] if guidance else None)
         with warnings.catch_warnings():  # a distilled model off its setting is the point here
             warnings.simplefilter("ignore")
             model.generate(n, 2, seed=0, steps=steps, solver=solver)  # warm-up
@@ -78,8 +93,9 @@ def compare(pool, sampler: str, n: int, runs, a, refs=None) -> list[dict]:
 def sweep(pool, name: str, n: int, settings, a) -> list[dict]:
     """One model under every (solver, steps) setting."""
     sampler = diffsampler_rt.load(name).card["sampler"]
-    return compare(pool, sampler, n, [(f"{solver} {steps}", name, solver, steps)
-                                      for solver, steps in settings], a)
+    return compare(pool, sampler, n,
+                   [(f"{solver} {steps}" + (f", guidance {more[0]}" if more else ""), name,
+                     solver, steps, *more) for solver, steps, *more in settings], a)
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -103,7 +119,8 @@ def main() -> None:
     p.add_argument("--models", nargs="*", help="default: every bundled model")
     p.add_argument("--sizes", type=int, nargs="*", default=[1024])
     p.add_argument("--settings", nargs="*", type=parse_setting,
-                   default=list(SETTINGS), help="solver:steps, e.g. dpmpp_2m:10")
+                   default=list(SETTINGS),
+                   help="solver:steps[:gL], e.g. dpmpp_2m:10 or ddim:8:g3")
     p.add_argument("--sets", type=int, default=64, help="sets per setting (and reference)")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--seed", type=int, default=1)

@@ -70,3 +70,21 @@ def test_speed_results_merge_size_by_size():
     merged = merge_kept(old, new)
     assert merged["sot"]["rows"] == {256: {"alone_s": 1.0}, 4096: {"alone_s": 5.0}}
     assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
+
+
+def test_solver_sweep_settings_may_override_the_guidance():
+    import argparse
+    import pytest
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.solver_sweep import load_with, parse_setting
+    assert parse_setting("dpmpp_2m:10") == ("dpmpp_2m", 10)
+    assert parse_setting("ddim:8:g3") == ("ddim", 8, 3)
+    with pytest.raises(argparse.ArgumentTypeError, match="'ddim:8:3'"):
+        parse_setting("ddim:8:3")
+    plain = load_with("ldbn", None)
+    guided = load_with("ldbn", 2)
+    assert guided.card["structure_guidance"] == 2 and guided is not plain
+    assert plain.card["structure_guidance"] == 5  # the cached, bundled model is untouched
+    np = pytest.importorskip("numpy")
+    a, b = plain.generate(256, 1, seed=0), guided.generate(256, 1, seed=0)
+    assert a.shape == b.shape and not np.array_equal(a, b)
