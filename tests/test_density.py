@@ -12,7 +12,8 @@ import diffsampler_rt
 from diffsampler_rt.card import CARD_KEY, parse_card
 from diffsampler_rt.density import check_table, unwarp, warp
 from diffsampler_rt.errors import ModelFormatError
-from trainer.density import choose_degree, fit_density, fit_density_legendre
+from trainer.density import (choose_degree, choose_degree_across_sizes, fit_density,
+                             fit_density_legendre)
 from trainer.samplers.densities import ramp_unwarp
 
 
@@ -90,6 +91,22 @@ def test_cross_validation_follows_the_density():
     assert check_table(table) is None
 
 
+def test_degree_across_sizes_ignores_what_one_size_alone_has():
+    # a density 2x shared by two sizes, plus at each size its own bump at a different place
+    # (a stand-in for a sampler's edge effects, which depend on n)
+    rng = np.random.default_rng(5)
+    groups = []
+    for centre in (0.2, 0.8):
+        pts = ramp_points(60_000, int(10 * centre))
+        bump = np.clip(rng.normal(centre, 0.03, (20_000, 2)), 0, 1 - 1e-9)
+        groups.append(rng.permutation(np.concatenate([pts, bump]))[:80_000].reshape(40, 2000, 2))
+    within = choose_degree(list(groups[0]), 16)[0]
+    across, risk, se = choose_degree_across_sizes(groups, 16)
+    assert within >= 12 and across <= 3  # measured: 16 and 0 (the bumps also tilt x apart)
+    with pytest.raises(ValueError, match="2 or more sizes"):
+        choose_degree_across_sizes(groups[:1], 4)
+
+
 def test_fit_arguments_checked():
     with pytest.raises(ValueError, match="bins must be an integer"):
         fit_density(np.zeros((4, 2)), 0)
@@ -158,7 +175,9 @@ def test_training_pools_are_uniformised(monkeypatch, tmp_path):
     with pytest.raises(ValueError, match="density_bins needs a pool at every size"):
         Batches(replace(data, pool_sizes=(6, 0)), seed=1)
     smooth = Batches(replace(data, density_fit="legendre", density_max_degree=3), seed=1)
-    assert smooth.density == fit_density_legendre(raw[8], 4, max_degree=3)[0]
+    # the degree is cross-validated across the pooled sizes, the fit uses density_sides
+    assert smooth.density == fit_density_legendre(raw[8], 4, max_degree=3,
+                                                  sizes=[raw[4], raw[8]])[0]
     with pytest.raises(ValueError, match="density_fit must be one of"):
         replace(data, density_fit="kde")
 

@@ -96,34 +96,58 @@ def choose_degree(sets: Sequence[np.ndarray], max_degree: int,
     The sets are dealt into ``folds`` folds; with coefficients a from one fold and b from the
     others, the sum over i, j <= D of a^2 - 2 a b estimates |f_a - f|^2 - |f|^2 (b is
     unbiased and independent of a). Of the degrees whose mean estimate over the folds is
-    within one standard error of the best, the lowest is taken (the one-standard-error rule):
-    the sets' own edge effects are systematic, so the estimate keeps falling slowly with the
-    degree, and a high-degree series rings across the whole square to follow them.
+    within one standard error of the best, the lowest is taken (the one-standard-error rule).
 
     Returns D, and the mean estimate and its standard error for every degree 0 .. max_degree.
     """
     folds = min(folds, len(sets))
     if folds < 2:
         raise ValueError(f"cross-validation needs at least 2 example sets, got {len(sets)}")
+    return _pick([(list(sets[f::folds]), [s for i, s in enumerate(sets) if i % folds != f])
+                  for f in range(folds)], max_degree)
+
+
+def choose_degree_across_sizes(groups: Sequence[Sequence[np.ndarray]],
+                               max_degree: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """Like :func:`choose_degree`, but a from the sets of one grid size and b from those of
+    another, over every ordered pair of the ``groups`` (one per size).
+
+    A sampler's own edge effects (e.g. SOT's first row of points, whose place depends on n)
+    are systematic within a size, so cross-validation inside one size keeps taking more
+    terms to follow them, and a high-degree series rings across the whole square (on the
+    SOT ramp's 1024-point sets: degree 16, points moved by up to 0.31). The density is what
+    every size shares: across sizes the estimate rises as soon as the terms stop doing so.
+    """
+    if len(groups) < 2:
+        raise ValueError(f"cross-validation across sizes needs 2 or more sizes, got {len(groups)}")
+    return _pick([(list(a), list(b)) for i, a in enumerate(groups)
+                  for j, b in enumerate(groups) if i != j], max_degree)
+
+
+def _pick(pairs: list, max_degree: int) -> tuple[int, np.ndarray, np.ndarray]:
     risks = []
-    for f in range(folds):
-        a = legendre_coefficients(sets[f::folds], max_degree)
-        b = legendre_coefficients([s for i, s in enumerate(sets) if i % folds != f], max_degree)
+    for fit, held in pairs:
+        a = legendre_coefficients(fit, max_degree)
+        b = legendre_coefficients(held, max_degree)
         term = a * a - 2 * a * b
         risks.append([term[:d + 1, :d + 1].sum() for d in range(max_degree + 1)])
     risks = np.asarray(risks)
-    mean, se = risks.mean(axis=0), risks.std(axis=0, ddof=1) / np.sqrt(folds)
+    mean, se = risks.mean(axis=0), risks.std(axis=0, ddof=1) / np.sqrt(len(risks))
     best = int(np.argmin(mean))
     return int(np.flatnonzero(mean <= mean[best] + se[best])[0]), mean, se
 
 
 def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: int = 24,
-                         floor: float = 1e-3) -> tuple[dict[str, list], int]:
+                         floor: float = 1e-3,
+                         sizes: Sequence[np.ndarray] | None = None) -> tuple[dict[str, list], int]:
     """Smooth density table (``bins`` x ``bins``) of example sets: the Legendre series of the
-    density, degree by cross-validation (:func:`choose_degree`), integrated over the cells.
+    density, degree by cross-validation, integrated over the cells.
 
     ``sets``: a sequence of (n, 2) sets, or (count, n, 2) arrays of them (sets of different
     sizes may be mixed). Where the series dips below zero the cell gets the floor.
+    ``sizes``: (count, n, 2) arrays of sets, one per size (two or more): the degree is then
+    cross-validated across them (:func:`choose_degree_across_sizes`), else over ``sets``
+    (:func:`choose_degree`).
 
     Returns the table and the chosen degree.
 
@@ -142,7 +166,8 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
     _check(np.concatenate([s.reshape(-1, 2) for s in each]), bins, floor)
     if not isinstance(max_degree, int) or not 0 <= max_degree <= 64:
         raise ValueError(f"max_degree must be an integer in [0, 64], got {max_degree!r}")
-    degree = choose_degree(each, max_degree)[0]
+    degree = (choose_degree_across_sizes(sizes, max_degree) if sizes is not None
+              else choose_degree(each, max_degree))[0]
     c = legendre_coefficients(each, degree)
     cells = _cell_integrals(bins, degree)
     return _table(cells @ c @ cells.T, floor), degree
