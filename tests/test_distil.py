@@ -146,6 +146,34 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
         m.generate(16, seed=0, steps=5)
 
 
+def test_a_later_stage_starts_from_the_earlier_student(tiny_onnx, tmp_path, monkeypatch):
+    from dataclasses import replace
+    from export.onnx_export import export_checkpoint
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = DistilConfig(teacher=str(tiny_onnx), name="tiny_fast", student_steps=2,
+                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
+                       trajectories=(6, 4), batch_sizes=(3, 2), steps=2, warmup_steps=1,
+                       attention_window=2, lr=1e-3)
+    first, _ = export_checkpoint(Distiller(cfg, tmp_path / "one", progress=False).run(),
+                                 tmp_path / "one.onnx", parity_sides=(8,))
+    later = replace(cfg, init_from=str(first), steps=1, seed=1)
+    d = Distiller(later, tmp_path / "two", progress=False)
+    start = net_from_onnx(first)[0].state_dict()
+    assert all(torch.equal(v, start[k]) for k, v in d.model.state_dict().items())
+    d.run()
+    record = d.state()["card_extra"]
+    assert (record["distillation"]["steps"], record["distillation"]["earlier_steps"]) == (1, 2)
+    assert "after 2 steps" in record["provenance"]
+    with pytest.raises(ValueError, match="is not a student of"):
+        Distiller(replace(cfg, init_from=str(tiny_onnx)), tmp_path / "three", progress=False)
+    with pytest.raises(ValueError, match="has architecture"):
+        Distiller(replace(later, attention_window=None), tmp_path / "four", progress=False)
+    with pytest.raises(FileNotFoundError, match="existing .onnx"):
+        Distiller(replace(cfg, init_from=str(tmp_path / "none.onnx")), tmp_path / "five",
+                  progress=False)
+
+
 def test_difference_term_charges_cell_to_cell_error_only():
     ab = torch.tensor(alphas_cumprod({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02,
                                       "num_steps": 1000}), dtype=torch.float32)

@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
 
     d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
-    _run_options(d, "default: runs/<student name>")
+    _run_options(d, "default: runs/<config file name without .json>")
 
     r = sub.add_parser("prepare", help="build (and cache) a config's training pools")
     r.add_argument("config", type=Path)
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         elif args.cmd == "distil":
             from .distil import DistilConfig, Distiller
             dcfg = DistilConfig.load(args.config)
-            dist = Distiller(dcfg, args.run_dir or Path("runs") / dcfg.name,
+            dist = Distiller(dcfg, args.run_dir or Path("runs") / args.config.stem,
                              progress=not args.no_progress, device=args.device)
             path = dist.run(until_step=args.steps,
                             max_seconds=None if args.minutes is None else 60 * args.minutes)

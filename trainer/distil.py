@@ -80,6 +80,9 @@ class DistilConfig:
     threads: int = 1
     checkpoint_every_s: float = 180.0
     log_every: int = 10
+    #: a later stage: start from this student export (``.onnx``, e.g. the previous stage's)
+    #: instead of the teacher's weights; its card's distillation steps are counted in
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("sizes", "trajectories", "batch_sizes"):
@@ -226,6 +229,9 @@ class Distiller:
         # stay on the CPU, the student trains where it is told
         self.device = torch.device(device)
         self.model = UNet(self.student_config().unet)
+        self.earlier = {"steps": 0, "seconds": 0}  # of the stages before init_from
+        if cfg.init_from:
+            net = self._earlier_stage(Path(cfg.init_from))
         self.model.load_state_dict(net.state_dict())
         self.model.to(self.device)
         self.ema = copy.deepcopy(self.model).requires_grad_(False)
@@ -244,6 +250,22 @@ class Distiller:
         if ckpt.exists():
             self._restore(load_checkpoint(ckpt))
 
+    def _earlier_stage(self, path: Path) -> UNet:
+        """The student of an earlier stage (same teacher, same architecture) and its record."""
+        if path.suffix != ".onnx" or not path.is_file():
+            raise FileNotFoundError(f"init_from {str(path)!r} must be an existing .onnx export")
+        net, cfg, card = net_from_onnx(path)
+        record = card.get("distillation")
+        if not record or record["teacher"] != self.teacher_card["name"]:
+            raise ValueError(f"init_from {str(path)!r} is not a student of "
+                             f"{self.teacher_card['name']!r}")
+        if cfg.unet != self.student_config().unet:
+            raise ValueError(f"init_from {str(path)!r} has architecture {cfg.unet}, "
+                             f"this student needs {self.student_config().unet}")
+        self.earlier = {"steps": record["steps"] + record.get("earlier_steps", 0),
+                        "seconds": record["seconds"] + record.get("earlier_seconds", 0)}
+        return net
+
     def student_config(self):
         """The teacher's training config, renamed, with the student's sampling defaults."""
         return replace(self.teacher_cfg, name=self.cfg.name, default_solver="ddim",
@@ -257,10 +279,16 @@ class Distiller:
                         "teacher_training_steps": self.teacher_card["training_steps"],
                         "steps": self.step, "seconds": round(self.elapsed),
                         "config": self.cfg.to_dict()}
+        earlier = ""
+        if self.cfg.init_from:
+            distillation.update(earlier_steps=self.earlier["steps"],
+                                earlier_seconds=self.earlier["seconds"])
+            earlier = (f" after {self.earlier['steps']} steps "
+                       f"({self.earlier['seconds'] / 60:.0f} min) in earlier stages")
         provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
                       f" steps) distilled to {self.cfg.student_steps} DDIM steps with "
                       f"`python -m trainer distil` for {self.step} steps, "
-                      f"{self.elapsed / 60:.0f} min on {describe_devices(self.devices)}")
+                      f"{self.elapsed / 60:.0f} min on {describe_devices(self.devices)}{earlier}")
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
                 "step": self.step, "elapsed_s": self.elapsed,
                 "training_steps": self.teacher_card["training_steps"],
