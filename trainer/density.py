@@ -9,8 +9,9 @@ the sets to the uniform square before the grid embedding, and that the runtime i
   as part of the pattern.
 - ``"legendre"``: a smooth fit, the tensor-product Legendre series of the density (the
   projection estimator: each coefficient is the mean of its basis function over the
-  points), its degree chosen by two-fold cross-validation over the example sets, then
-  integrated exactly over the cells of a fine table. Blue-noise and low-discrepancy sets
+  points), its degree chosen by cross-validation (across grid sizes where there are
+  several, else over folds of the sets), then integrated exactly over the cells of a
+  fine table. Blue-noise and low-discrepancy sets
   integrate polynomials far better than random points, so the coefficients are precise
   and the fit converges like the density's series, not like a histogram's bins.
 """
@@ -103,8 +104,7 @@ def choose_degree(sets: Sequence[np.ndarray], max_degree: int,
     folds = min(folds, len(sets))
     if folds < 2:
         raise ValueError(f"cross-validation needs at least 2 example sets, got {len(sets)}")
-    return _pick([(list(sets[f::folds]), [s for i, s in enumerate(sets) if i % folds != f])
-                  for f in range(folds)], max_degree)
+    return _pick([list(sets[f::folds]) for f in range(folds)], max_degree)
 
 
 def choose_degree_across_sizes(groups: Sequence[Sequence[np.ndarray]],
@@ -120,17 +120,24 @@ def choose_degree_across_sizes(groups: Sequence[Sequence[np.ndarray]],
     """
     if len(groups) < 2:
         raise ValueError(f"cross-validation across sizes needs 2 or more sizes, got {len(groups)}")
-    return _pick([(list(a), list(b)) for i, a in enumerate(groups)
-                  for j, b in enumerate(groups) if i != j], max_degree)
+    return _pick([list(g) for g in groups], max_degree, leave_one_out=False)
 
 
-def _pick(pairs: list, max_degree: int) -> tuple[int, np.ndarray, np.ndarray]:
+def _pick(parts: list, max_degree: int,
+          leave_one_out: bool = True) -> tuple[int, np.ndarray, np.ndarray]:
+    """The one-standard-error degree over estimates with a from one part and b from the
+    others pooled (``leave_one_out``) or from each other part in turn. Each part's
+    coefficients are computed once; pooled ones are their point-weighted mean."""
+    coef = [legendre_coefficients(p, max_degree) for p in parts]
+    count = [sum(np.size(s) // 2 for s in p) for p in parts]
     risks = []
-    for fit, held in pairs:
-        a = legendre_coefficients(fit, max_degree)
-        b = legendre_coefficients(held, max_degree)
-        term = a * a - 2 * a * b
-        risks.append([term[:d + 1, :d + 1].sum() for d in range(max_degree + 1)])
+    for i, a in enumerate(coef):
+        others = [j for j in range(len(parts)) if j != i]
+        held = ([sum(coef[j] * count[j] for j in others) / sum(count[j] for j in others)]
+                if leave_one_out else [coef[j] for j in others])
+        for b in held:
+            term = a * a - 2 * a * b
+            risks.append([term[:d + 1, :d + 1].sum() for d in range(max_degree + 1)])
     risks = np.asarray(risks)
     mean, se = risks.mean(axis=0), risks.std(axis=0, ddof=1) / np.sqrt(len(risks))
     best = int(np.argmin(mean))
@@ -160,9 +167,9 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
     >>> round(table["x_cdf"][16], 2)  # F_X(1/2) = 1/4
     0.25
     """
-    flat = [np.asarray(s, dtype=np.float64).reshape(-1, np.shape(s)[-2], 2) for s in sets] \
-        if not isinstance(sets, np.ndarray) else [np.asarray(sets, dtype=np.float64)]
-    each = [s for group in flat for s in group]
+    groups = [sets] if isinstance(sets, np.ndarray) else sets
+    each = [s for g in groups
+            for s in np.asarray(g, dtype=np.float64).reshape(-1, np.shape(g)[-2], 2)]
     _check(np.concatenate([s.reshape(-1, 2) for s in each]), bins, floor)
     if not isinstance(max_degree, int) or not 0 <= max_degree <= 64:
         raise ValueError(f"max_degree must be an integer in [0, 64], got {max_degree!r}")
