@@ -39,7 +39,8 @@ class DataConfig:
     density_sides: tuple[int, ...] = ()
     #: how the density is fitted (trainer.density.FITS): "histogram" (density_bins bins) or
     #: "legendre" (a smooth series, degree by cross-validation up to density_max_degree,
-    #: tabulated on density_bins x density_bins cells)
+    #: tabulated on density_bins x density_bins cells) or "log_legendre" (the same for the
+    #: log density, fitted by maximum likelihood: positive, for densities near zero)
     density_fit: str = "histogram"
     density_max_degree: int = 16
 

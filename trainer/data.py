@@ -13,7 +13,7 @@ from diffsampler_rt.density import unwarp
 from diffsampler_rt.grid import decode
 
 from .config import DataConfig
-from .density import fit_density, fit_density_legendre
+from .density import fit_density, fit_density_legendre, fit_density_log_legendre
 from .embedding import embed, symmetries
 from .samplers import TOROIDAL, sample
 
@@ -88,6 +88,11 @@ def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
         table, _ = fit_density_legendre([points[k] for k in sides], bins, max_degree=max_degree,
                                         sizes=[points[k] for k in sorted(points)]
                                         if len(points) > 1 else None)
+    elif fit == "log_legendre":
+        table, _ = fit_density_log_legendre([points[k] for k in sides], bins,
+                                            max_degree=max_degree,
+                                            sizes=[points[k] for k in sorted(points)]
+                                            if len(points) > 1 else None)
     else:
         table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
     return ({k: embed(unwarp(p, table), embedding).astype(np.float32)
