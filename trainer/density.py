@@ -230,16 +230,16 @@ def _features(p: np.ndarray, degree: int) -> np.ndarray:
 
 
 def fit_log_density(groups: Sequence[np.ndarray], degree: int, *,
-                    nodes: int = 96) -> tuple[np.ndarray, float]:
-    """(theta, held-out score): the log-density series of the pooled ``groups`` fitted by
-    maximum likelihood; theta is ((degree + 1)^2,) with a zero constant term."""
+                    nodes: int = 96) -> np.ndarray:
+    """theta ((degree + 1)^2,), x index first, zero constant term: the log-density series of
+    the pooled ``groups`` fitted by maximum likelihood (up to its normalising constant)."""
     p = np.concatenate([np.asarray(g, dtype=np.float64).reshape(-1, 2) for g in groups])
     t, w = _quadrature(nodes)
     q = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2)
     w2 = np.outer(w, w).ravel()
     feats = _features(q, degree)[:, 1:]  # the constant is log Z's job
     theta = _loglik_fit(_features(p, degree)[:, 1:].mean(axis=0), feats, w2)
-    return np.concatenate([[0.0], theta]), 0.0
+    return np.concatenate([[0.0], theta])
 
 
 def _log_norm(theta: np.ndarray, degree: int, nodes: int = 96) -> float:
@@ -264,7 +264,7 @@ def choose_log_degree(groups: Sequence[np.ndarray], max_degree: int
     for d in range(max_degree + 1):
         col = 0
         for i in range(len(pts)):
-            theta, _ = fit_log_density([pts[i]], d)
+            theta = fit_log_density([pts[i]], d)
             log_z = _log_norm(theta, d)
             for j in range(len(pts)):
                 if j != i:
@@ -302,7 +302,7 @@ def fit_density_log_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degre
     if not isinstance(max_degree, int) or not 0 <= max_degree <= 32:
         raise ValueError(f"max_degree must be an integer in [0, 32], got {max_degree!r}")
     degree = choose_log_degree(sizes, max_degree)[0] if sizes is not None else max_degree
-    theta, _ = fit_log_density(each, degree)
+    theta = fit_log_density(each, degree)
     m = bins * sub
     t = (np.arange(m) + 0.5) / m
     bx = _basis(t, degree)
