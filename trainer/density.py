@@ -185,9 +185,10 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
 
 
 def _quadrature(nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Legendre nodes and weights on [0, 1]."""
+    """(nodes^2, 2) tensor Gauss-Legendre nodes on the unit square and their weights."""
     t, w = legendre.leggauss(nodes)
-    return (t + 1) / 2, w / 2
+    t, w = (t + 1) / 2, w / 2
+    return np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
 
 
 def _loglik_fit(stats: np.ndarray, phi: np.ndarray, w2: np.ndarray,
@@ -234,20 +235,17 @@ def fit_log_density(groups: Sequence[np.ndarray], degree: int, *,
     """theta ((degree + 1)^2,), x index first, zero constant term: the log-density series of
     the pooled ``groups`` fitted by maximum likelihood (up to its normalising constant)."""
     p = np.concatenate([np.asarray(g, dtype=np.float64).reshape(-1, 2) for g in groups])
-    t, w = _quadrature(nodes)
-    q = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2)
-    w2 = np.outer(w, w).ravel()
+    q, w2 = _quadrature(nodes)
     feats = _features(q, degree)[:, 1:]  # the constant is log Z's job
     theta = _loglik_fit(_features(p, degree)[:, 1:].mean(axis=0), feats, w2)
     return np.concatenate([[0.0], theta])
 
 
 def _log_norm(theta: np.ndarray, degree: int, nodes: int = 96) -> float:
-    t, w = _quadrature(nodes)
-    q = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2)
+    q, w2 = _quadrature(nodes)
     s = _features(q, degree) @ theta
     top = s.max()
-    return float(np.log(np.outer(w, w).ravel() @ np.exp(s - top)) + top)
+    return float(np.log(w2 @ np.exp(s - top)) + top)
 
 
 def choose_log_degree(groups: Sequence[np.ndarray], max_degree: int
