@@ -83,16 +83,12 @@ def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
         raise ValueError(f"density_sides {list(sides)} must be among the pooled sides "
                          f"{sorted(pools)}")
     points = {k: decode(p) for k, p in pools.items()}
-    if fit == "legendre":
+    smooth = {"legendre": fit_density_legendre, "log_legendre": fit_density_log_legendre}
+    if fit in smooth:
         # the degree: what the sets of every pooled size share (their edge effects differ)
-        table, _ = fit_density_legendre([points[k] for k in sides], bins, max_degree=max_degree,
-                                        sizes=[points[k] for k in sorted(points)]
-                                        if len(points) > 1 else None)
-    elif fit == "log_legendre":
-        table, _ = fit_density_log_legendre([points[k] for k in sides], bins,
-                                            max_degree=max_degree,
-                                            sizes=[points[k] for k in sorted(points)]
-                                            if len(points) > 1 else None)
+        table, _ = smooth[fit]([points[k] for k in sides], bins, max_degree=max_degree,
+                               sizes=[points[k] for k in sorted(points)]
+                               if len(points) > 1 else None)
     else:
         table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
     return ({k: embed(unwarp(p, table), embedding).astype(np.float32)

@@ -148,6 +148,19 @@ def _pick(parts: list, max_degree: int,
     return int(np.flatnonzero(mean <= mean[best] + se[best])[0]), mean, se
 
 
+def _each_set(sets: Sequence[np.ndarray], bins: int, floor: float, max_degree: int,
+              cap: int) -> list[np.ndarray]:
+    """The smooth fits' input as a list of (n, 2) float64 sets (``sets``: sets, or
+    (count, n, 2) arrays of them), checked with the fit's arguments."""
+    groups = [sets] if isinstance(sets, np.ndarray) else sets
+    each = [s for g in groups
+            for s in np.asarray(g, dtype=np.float64).reshape(-1, np.shape(g)[-2], 2)]
+    _check(np.concatenate([s.reshape(-1, 2) for s in each]), bins, floor)
+    if not isinstance(max_degree, int) or not 0 <= max_degree <= cap:
+        raise ValueError(f"max_degree must be an integer in [0, {cap}], got {max_degree!r}")
+    return each
+
+
 def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: int = 24,
                          floor: float = 1e-3,
                          sizes: Sequence[np.ndarray] | None = None) -> tuple[dict[str, list], int]:
@@ -171,12 +184,7 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
     >>> round(table["x_cdf"][16], 2)  # F_X(1/2) = 1/4
     0.25
     """
-    groups = [sets] if isinstance(sets, np.ndarray) else sets
-    each = [s for g in groups
-            for s in np.asarray(g, dtype=np.float64).reshape(-1, np.shape(g)[-2], 2)]
-    _check(np.concatenate([s.reshape(-1, 2) for s in each]), bins, floor)
-    if not isinstance(max_degree, int) or not 0 <= max_degree <= 64:
-        raise ValueError(f"max_degree must be an integer in [0, 64], got {max_degree!r}")
+    each = _each_set(sets, bins, floor, max_degree, 64)
     degree = (choose_degree_across_sizes(sizes, max_degree) if sizes is not None
               else choose_degree(each, max_degree))[0]
     c = legendre_coefficients(each, degree)
@@ -191,6 +199,13 @@ def _quadrature(nodes: int) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
 
 
+def _log_partition(s: np.ndarray, w2: np.ndarray) -> tuple[float, np.ndarray]:
+    """log sum_q w2_q exp(s_q), computed stably, and the normalised weights."""
+    top = s.max()
+    e = w2 * np.exp(s - top)
+    return float(np.log(e.sum()) + top), e / e.sum()
+
+
 def _loglik_fit(stats: np.ndarray, phi: np.ndarray, w2: np.ndarray,
                 ridge: float = 1e-8, iterations: int = 100) -> np.ndarray:
     """theta maximising theta . stats - log Z(theta), Z = sum_q w2_q exp(theta . phi_q).
@@ -201,10 +216,8 @@ def _loglik_fit(stats: np.ndarray, phi: np.ndarray, w2: np.ndarray,
     theta = np.zeros(len(stats))
 
     def value(th: np.ndarray) -> tuple[float, np.ndarray]:
-        s = phi @ th
-        top = s.max()
-        e = w2 * np.exp(s - top)
-        return float(th @ stats - (np.log(e.sum()) + top) - ridge * th @ th), e / e.sum()
+        log_z, q = _log_partition(phi @ th, w2)
+        return float(th @ stats - log_z - ridge * th @ th), q
 
     f, q = value(theta)
     for _ in range(iterations):
@@ -243,9 +256,7 @@ def fit_log_density(groups: Sequence[np.ndarray], degree: int, *,
 
 def _log_norm(theta: np.ndarray, degree: int, nodes: int = 96) -> float:
     q, w2 = _quadrature(nodes)
-    s = _features(q, degree) @ theta
-    top = s.max()
-    return float(np.log(w2 @ np.exp(s - top)) + top)
+    return _log_partition(_features(q, degree) @ theta, w2)[0]
 
 
 def choose_log_degree(groups: Sequence[np.ndarray], max_degree: int
@@ -294,11 +305,7 @@ def fit_density_log_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degre
     >>> round(table["x_cdf"][16], 2)  # F_X(1/2) = 1/4
     0.25
     """
-    groups = [sets] if isinstance(sets, np.ndarray) else sets
-    each = [np.asarray(g, dtype=np.float64).reshape(-1, 2) for g in groups]
-    _check(np.concatenate(each), bins, floor)
-    if not isinstance(max_degree, int) or not 0 <= max_degree <= 32:
-        raise ValueError(f"max_degree must be an integer in [0, 32], got {max_degree!r}")
+    each = _each_set(sets, bins, floor, max_degree, 32)
     degree = choose_log_degree(sizes, max_degree)[0] if sizes is not None else max_degree
     theta = fit_log_density(each, degree)
     m = bins * sub
