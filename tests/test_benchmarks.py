@@ -72,6 +72,29 @@ def test_speed_results_merge_size_by_size():
     assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
 
 
+def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch, capsys):
+    # a slow reference stopped at the first size timed must not be started (and stopped
+    # after 4x the budget) again at every larger size
+    import argparse
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import speed
+    calls = []
+
+    def fake_child(args, timeout):
+        calls.append(args[:3])
+        if args[0] == "model":
+            return {"alone_s": 1.0, "batch_s_per_set": 1.0, "peak_mib": 100.0}
+        return None  # the reference ran past its timeout
+
+    monkeypatch.setattr(speed, "_run_child", fake_child)
+    a = argparse.Namespace(models=["gbn_blob"], sizes=[16384, 65536, 262144], batch=32,
+                           repeats=1, threads=0, ref_budget=120.0)
+    rows = speed.measure(a)["gbn_blob"]["rows"]
+    assert [c for c in calls if c[0] == "reference"] == [["reference", "gbn_blob", "16384"]]
+    assert "stopped" in rows[16384]["ref_note"]
+    assert rows[65536]["ref_note"].startswith("not run") and rows[262144]["ref_s"] is None
+
+
 def test_solver_sweep_settings_may_override_the_guidance():
     import argparse
     import pytest
