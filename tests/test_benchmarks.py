@@ -72,7 +72,7 @@ def test_speed_results_merge_size_by_size():
     assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
 
 
-def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch, capsys):
+def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
     # a slow reference stopped at the first size timed must not be started (and stopped
     # after 4x the budget) again at every larger size
     import argparse
