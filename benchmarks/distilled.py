@@ -70,6 +70,23 @@ def to_teacher(student: str, n: int, sets: int) -> list[str]:
     return lines + [""]
 
 
+def effort(d: dict) -> str:
+    """"1500 optimiser steps, 35 min", with the earlier stages of a staged distillation."""
+    text = f"{d['steps']} optimiser steps, {d['seconds'] / 60:.0f} min"
+    if d.get("earlier_steps"):
+        text += (f" after {d['earlier_steps']} steps ({d['earlier_seconds'] / 60:.0f} min) in "
+                 "earlier stages")
+    return text
+
+
+def quantised(card: dict) -> str:
+    """How the student's file differs from the network the distillation made, if it does."""
+    if card.get("weights") != "int8":
+        return ""
+    return ("; its convolutions then quantised to 8 bits (`python -m export quantize`, "
+            "benchmarks/results/quantized.md)")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", nargs="*", help="students (default: every distilled bundled model)")
@@ -106,9 +123,9 @@ def main() -> None:
             lines = [f"## {name}", "",
                      f"Distilled from `{d['teacher']}` ({d['config']['teacher_solver']} "
                      f"{d['config']['teacher_steps']} steps as teacher) to "
-                     f"{card['default_solver']} {card['default_steps']} steps: {d['steps']} "
-                     f"optimiser steps, {d['seconds'] / 60:.0f} min on CPU (shared with other "
-                     f"jobs). Measured {dt.date.today().isoformat()} with `--sets {a.sets} "
+                     f"{card['default_solver']} {card['default_steps']} steps: "
+                     f"{effort(d)} on CPU (shared with other jobs)"
+                     f"{quantised(card)}. Measured {dt.date.today().isoformat()} with `--sets {a.sets} "
                      f"--ref-sets {' '.join(map(str, a.ref_sets))}`.", ""]
             lines += to_teacher(name, 1024, a.teacher_sets)
             for n in a.sizes:

@@ -102,7 +102,29 @@ def fmt_s(s: float | None) -> str:
     return f"{1000 * s:.1f} ms" if s < 1 else f"{s:.2f} s"
 
 
-def measure(a) -> dict:
+def earlier_reference(kept: dict, sampler: str, below: int, budget: float
+                      ) -> tuple[int, float] | tuple[None, None]:
+    """(n, seconds per set) at the largest size under ``below`` where a kept run timed
+    ``sampler``'s reference (or had to stop it: 4x the budget), to start this run's estimate
+    from; (None, None) if there is none."""
+    best: tuple[int, float] | tuple[None, None] = (None, None)
+    for result in kept.values():
+        if result.get("sampler") != sampler:
+            continue
+        for n, row in result["rows"].items():
+            n = int(n)
+            seconds = row.get("ref_s")
+            if seconds is None and "stopped" in row.get("ref_note", ""):
+                seconds = 4 * budget
+            if seconds is not None and n < below and (best[0] is None or n > best[0]):
+                best = (n, seconds)
+    return best
+
+
+def measure(a, kept: dict | None = None) -> dict:
+    """Time the models of ``a``; ``kept`` (speed.json's earlier results) seeds the estimate
+    of a slow reference at the run's first size, so one known to take many minutes there is
+    not started just to be stopped."""
     sys.path.insert(0, str(ROOT))
     import diffsampler_rt
     models = a.models or diffsampler_rt.list_models()
@@ -111,7 +133,7 @@ def measure(a) -> dict:
         sampler = diffsampler_rt.load(name).card["sampler"]
         rows = {}
         ref_est = 0.0
-        prev_n, prev_ref = None, None
+        prev_n, prev_ref = earlier_reference(kept or {}, sampler, min(a.sizes), a.ref_budget)
         for n in a.sizes:
             r = _run_child(["model", name, str(n), str(batch_for(n, a.batch)), str(a.repeats),
                             str(a.threads or 0)], timeout=3600)
@@ -263,12 +285,13 @@ def main() -> None:
     p.add_argument("--report-only", action="store_true",
                    help="rebuild speed.md / speed.png from the kept speed.json")
     a = p.parse_args()
-    results = {} if a.report_only else measure(a)
     # keep other models' earlier measurements (speed.json), so models or sizes can be
     # measured in separate runs; the report covers every model measured so far
-    kept = ROOT / "benchmarks" / "results" / "speed.json"
-    if kept.exists() and not a.fresh:
-        results = merge_kept(json.loads(kept.read_text()), results)
+    path = ROOT / "benchmarks" / "results" / "speed.json"
+    kept = json.loads(path.read_text()) if path.exists() else {}
+    results = {} if a.report_only else measure(a, kept)
+    if kept and not a.fresh:
+        results = merge_kept(kept, results)
     report(dict(sorted(results.items())), a)
 
 

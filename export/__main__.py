@@ -8,6 +8,10 @@ change the sampling defaults in an exported model's card.
 
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
+
+``python -m export quantize MODEL.onnx -o OUT.onnx [--sets N] [--seed S]``: the same network
+with 8-bit convolutions, calibrated on its own sampling (about a third less time per
+evaluation on x86 CPUs; measure its fidelity with benchmarks/quantized.py).
 """
 from __future__ import annotations
 
@@ -176,12 +180,39 @@ def reexport_main(argv: list[str]) -> int:
     return 0
 
 
+def quantize_main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m export quantize",
+                                description="8-bit convolutions, calibrated on the model's "
+                                            "own sampling (export/quantize.py)")
+    p.add_argument("model", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("--sets", type=int, default=8,
+                   help="calibration sets generated per trained grid side (default 8)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the calibration sets")
+    args = p.parse_args(argv)
+    if not args.model.exists():
+        print(f"error: model {args.model} not found", file=sys.stderr)
+        return 2
+    from .quantize import quantize
+    try:
+        card = quantize(args.model, args.output, sets=args.sets, seed=args.seed)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    q = card["quantization"]
+    print(f"wrote {args.output} ({args.output.stat().st_size / 2**20:.2f} MiB); calibrated on "
+          f"{q['feeds']} solver inputs at grid sides {', '.join(map(str, q['sides']))}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["set-defaults"]:
         return set_defaults_main(argv[1:])
     if argv[:1] == ["reexport"]:
         return reexport_main(argv[1:])
+    if argv[:1] == ["quantize"]:
+        return quantize_main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m export", description=__doc__)
     p.add_argument("checkpoint", type=Path, help="runs/<name>/checkpoint.pt")
     p.add_argument("-o", "--output", type=Path, required=True)

@@ -95,6 +95,35 @@ def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
     assert rows[65536]["ref_note"].startswith("not run") and rows[262144]["ref_s"] is None
 
 
+def test_speed_starts_its_reference_estimate_from_the_kept_rows(monkeypatch):
+    # gbn_blob's reference took 40 s a set at 1024 in an earlier run: at 4096 it would take
+    # ~320 s, over the 120 s budget, so a run that starts at 4096 must not start it at all
+    import argparse
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import speed
+    calls = []
+
+    def fake_child(args, timeout):
+        calls.append(args[:3])
+        return {"alone_s": 1.0, "batch_s_per_set": 1.0, "peak_mib": 100.0, "ref_s": 1.0}
+
+    monkeypatch.setattr(speed, "_run_child", fake_child)
+    kept = {"gbn_blob": {"sampler": "gbn_blob", "rows": {
+        "256": {"ref_s": 9.0}, "1024": {"ref_s": 40.0},
+        "16384": {"ref_s": None, "ref_note": "> 480 s (stopped)"}}}}
+    assert speed.earlier_reference(kept, "gbn_blob", 4096, 120.0) == (1024, 40.0)
+    assert speed.earlier_reference(kept, "gbn_blob", 65536, 120.0) == (16384, 480.0)
+    assert speed.earlier_reference(kept, "gbn", 4096, 120.0) == (None, None)
+    a = argparse.Namespace(models=["gbn_blob"], sizes=[4096], batch=32, repeats=1, threads=0,
+                           ref_budget=120.0)
+    row = speed.measure(a, kept)["gbn_blob"]["rows"][4096]
+    assert [c for c in calls if c[0] == "reference"] == []
+    assert row["ref_note"] == "not run (~320 s estimated)"
+    calls.clear()
+    speed.measure(a)  # nothing kept: the first size is always tried
+    assert [c for c in calls if c[0] == "reference"] == [["reference", "gbn_blob", "4096"]]
+
+
 def test_solver_sweep_settings_may_override_the_guidance():
     import argparse
     import pytest

@@ -71,6 +71,9 @@ def net_from_onnx(path: str | Path) -> tuple[UNet, TrainConfig, dict[str, Any]]:
     if CARD_KEY not in meta:
         raise ValueError(f"{path} has no diffsampler model card")
     card = json.loads(meta[CARD_KEY])
+    if card.get("weights") == "int8":
+        raise ValueError(f"{path} has 8-bit quantised convolutions (python -m export quantize); "
+                         "start from the float model it was quantised from")
     cfg = TrainConfig.from_dict(card["config"])
     net = UNet(cfg.unet)
     wanted = net.state_dict()

@@ -1,0 +1,142 @@
+"""Static 8-bit quantisation of an exported model's convolutions, calibrated on its own sampling.
+
+On a 2-core x86 CPU the convolutions are over half of a denoiser evaluation
+(benchmarks/results/ort_tuning.md); as QLinearConv (8-bit weights per output channel, 8-bit
+activations) one evaluation costs about a third less. The activation ranges come from what
+the network really sees: every denoiser input of the runtime's own solver, at the card's
+default solver and steps, on the trained grid sides (min-max over those feeds), so the late,
+nearly clean steps that fix the fine placement are covered, not only pure noise.
+
+Measured choices (benchmarks/results/quantized.md has the numbers):
+
+- the first convolution (2 input channels, cheap) and the last one (the eps head) stay
+  float: quantising the head's output to 256 levels alone raised the Gaussian and Heaviside
+  integration errors of gbn_fast by ~8 % at n = 1024, with it float they match the float
+  model's to 0.1 %;
+- weights are unsigned 8-bit (asymmetric, per channel): x86 CPUs without VNNI multiply
+  unsigned x signed bytes with an instruction that saturates, and onnxruntime runs
+  unsigned x unsigned without it; on this VNNI CPU both cost the same. 7-bit signed weights
+  (``reduce_range``, the other cure) wrecked the sets (integration errors x4).
+
+The card keeps everything it had and gains ``"weights": "int8"`` and a ``"quantization"``
+record (method, calibration sides, sets and feeds, and the float network's short SHA-1, as
+a distilled student records its teacher's). Whether the quantised model keeps its fidelity
+is measured, not assumed: ``benchmarks/quantized.py`` compares it with its float model on
+the same seeds, and the fidelity report measures it against the reference sampler.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import tempfile
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from diffsampler_rt.card import CARD_KEY, parse_card
+from trainer.distil import network_hash
+
+#: what the card's ``quantization.method`` records
+METHOD = ("static QOperator: QLinearConv with per-channel uint8 weights and uint8 "
+          "activations, min-max calibration on the model's own solver inputs; first and "
+          "last convolutions float")
+
+
+def solver_inputs(path: str | Path, sides: Iterable[int], sets: int, seed: int
+                  ) -> list[dict[str, np.ndarray]]:
+    """Every (x, t) the runtime's solver feeds the network while it generates ``sets`` sets
+    at each grid side, with the card's default solver, steps and structure guidance."""
+    from diffsampler_rt.model import Model
+    model = Model(path)
+    feeds: list[dict[str, np.ndarray]] = []
+    evaluate = model.denoise
+
+    def recording(x: np.ndarray, t: int) -> np.ndarray:
+        feeds.append({"x": x.astype(np.float32), "t": np.full(len(x), float(t), np.float32)})
+        return evaluate(x, t)
+
+    model.denoise = recording  # the generation loop reads the bound method per call
+    for k in sides:
+        model.generate(k * k, sets, seed=seed + k)
+    return feeds
+
+
+def _float32_file(src: Path, dst: Path) -> None:
+    """``src`` with fp16-stored weights folded to float32 initialisers (the quantiser reads
+    float32 weights); onnxruntime's basic optimisations do the folding, metadata kept."""
+    import onnxruntime as ort
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_BASIC
+    opts.optimized_model_filepath = str(dst)
+    ort.InferenceSession(str(src), sess_options=opts, providers=["CPUExecutionProvider"])
+
+
+def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None = None,
+             sets: int = 8, seed: int = 0) -> dict:
+    """Write ``src`` with int8 convolutions to ``dst``; returns the new card.
+
+    Parameters
+    ----------
+    src, dst : path
+        An exported float model (fp16- or fp32-stored weights) and the output path.
+    sides : tuple of int, optional
+        Grid sides to calibrate on (default: the card's trained sizes).
+    sets : int
+        Sets generated per side for calibration.
+    seed : int
+        Seeds the calibration sets.
+    """
+    import onnx
+    from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType,
+                                          quantize_static)
+    src, dst = Path(src), Path(dst)
+    source = onnx.load(str(src))
+    meta = {p.key: p.value for p in source.metadata_props}
+    if CARD_KEY not in meta:
+        raise ValueError(f"{src} has no diffsampler model card")
+    card = json.loads(meta[CARD_KEY])
+    if card.get("weights") == "int8":
+        raise ValueError(f"{src} is already int8-quantised")
+    if sets < 1:
+        raise ValueError(f"sets must be >= 1, got {sets}")
+    if sides is None:  # the card lists trained sizes as point counts k*k
+        sides = tuple(math.isqrt(n) for n in card["trained_sizes"])
+    sides = tuple(sides)
+    if not sides or any(k < 4 for k in sides):
+        raise ValueError(f"calibration sides must be grid sides >= 4, got {sides}")
+    feeds = solver_inputs(src, sides, sets, seed)
+
+    class Feeds(CalibrationDataReader):
+        def __init__(self):
+            self._it = iter(feeds)
+
+        def get_next(self):
+            return next(self._it, None)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        f32 = Path(tmp) / "f32.onnx"
+        _float32_file(src, f32)
+        convs = [node.name for node in onnx.load(str(f32)).graph.node if node.op_type == "Conv"]
+        kept = [convs[0], convs[-1]]  # nodes are in topological order: stem and eps head
+        quantize_static(str(f32), str(dst), Feeds(), quant_format=QuantFormat.QOperator,
+                        per_channel=True, activation_type=QuantType.QUInt8,
+                        weight_type=QuantType.QUInt8, op_types_to_quantize=["Conv"],
+                        nodes_to_exclude=kept)
+    model = onnx.load(str(dst))
+    card = dict(card, weights="int8", quantization={
+        "method": METHOD, "sides": list(sides), "sets_per_side": sets, "seed": seed,
+        "feeds": len(feeds), "float_network_sha1": network_hash(src),
+        "date": _dt.date.today().isoformat()})
+    card["provenance"] = (card.get("provenance", "")
+                          + f"; convolutions quantised to int8 on {card['quantization']['date']}")
+    text = json.dumps(card, sort_keys=True)
+    parse_card({CARD_KEY: text}, str(dst))
+    kept = [p for p in model.metadata_props if p.key in meta and p.key != CARD_KEY]
+    del model.metadata_props[:]
+    for p in kept:
+        model.metadata_props.add(key=p.key, value=p.value)
+    model.metadata_props.add(key=CARD_KEY, value=text)
+    onnx.save(model, str(dst))
+    return card

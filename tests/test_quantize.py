@@ -1,0 +1,111 @@
+"""8-bit convolutions (export/quantize.py) and the quantised bundled models."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+onnx = pytest.importorskip("onnx")
+pytest.importorskip("torch")
+
+import diffsampler_rt  # noqa: E402
+from diffsampler_rt.card import CARD_KEY  # noqa: E402
+from export.__main__ import main as export_main  # noqa: E402
+from export.quantize import quantize, solver_inputs  # noqa: E402
+from trainer.distil import network_hash  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def tiny_int8(tiny_onnx, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("int8") / "tiny_int8.onnx"
+    quantize(tiny_onnx, out, sets=2, seed=0)
+    return out
+
+
+def test_calibration_sees_every_solver_input_at_the_trained_sides(tiny_onnx):
+    card = diffsampler_rt.load(tiny_onnx).card
+    feeds = solver_inputs(tiny_onnx, (4, 8), sets=3, seed=0)
+    assert len(feeds) == 2 * card["default_steps"]  # one per solver step and side
+    assert [f["x"].shape for f in feeds[::card["default_steps"]]] == [(3, 2, 4, 4), (3, 2, 8, 8)]
+    # from pure noise down to the last, nearly clean step
+    assert feeds[0]["t"][0] > feeds[card["default_steps"] - 1]["t"][0]
+
+
+def test_quantised_file_keeps_the_card_and_only_the_inner_convolutions_change(tiny_onnx,
+                                                                            tiny_int8):
+    before = diffsampler_rt.load(tiny_onnx).card
+    after = diffsampler_rt.load(tiny_int8).card
+    assert after["weights"] == "int8"
+    q = after["quantization"]
+    assert q["sides"] == [4, 8] and q["sets_per_side"] == 2
+    assert q["feeds"] == 2 * before["default_steps"]
+    assert q["float_network_sha1"] == network_hash(tiny_onnx)
+    assert after["provenance"].startswith(before["provenance"])
+    changed = {k for k in set(before) | set(after) if before.get(k) != after.get(k)}
+    assert changed == {"weights", "quantization", "provenance"}
+    ops = [n.op_type for n in onnx.load(str(tiny_int8)).graph.node]
+    float_convs = ops.count("Conv")
+    assert float_convs == 2  # the 2-channel stem and the eps head stay float
+    assert ops.count("QLinearConv") == [n.op_type for n in
+                                        onnx.load(str(tiny_onnx)).graph.node].count("Conv") - 2
+
+
+def test_quantised_model_generates_valid_reproducible_sets_at_any_side(tiny_int8):
+    m = diffsampler_rt.load(tiny_int8)
+    for n in (16, 25, 64, 144):
+        pts = m.generate(n, 3, seed=1)
+        assert pts.shape == (3, n, 2)
+        assert np.isfinite(pts).all() and (pts >= 0).all() and (pts < 1).all()
+    np.testing.assert_array_equal(m.generate(64, 2, seed=4), m.generate(64, 2, seed=4))
+
+
+def test_bundled_quantised_network_stays_close_to_its_float_one():
+    # gbn_fast's eps prediction along its own 8-step trajectories at the trained k = 32:
+    # measured 0.9 % relative RMS error in the noisy steps and 3 % in the last, nearly
+    # clean one (benchmarks/results/quantized.md has what that does to the sets)
+    f = diffsampler_rt.load(ROOT / "models" / "float" / "gbn_fast.onnx")
+    q = diffsampler_rt.load("gbn_fast")
+    for feed in solver_inputs(f.path, (32,), sets=2, seed=99):
+        x, t = feed["x"].astype(np.float64), int(feed["t"][0])
+        ef, eq = f.denoise(x, t), q.denoise(x, t)
+        error = np.sqrt(np.mean((eq - ef) ** 2) / np.mean(ef ** 2))
+        assert 0 < error < (0.015 if t > 300 else 0.05), (t, error)
+
+
+def test_quantising_twice_or_warm_starting_from_int8_is_refused(tiny_int8, tmp_path):
+    with pytest.raises(ValueError, match="already int8"):
+        quantize(tiny_int8, tmp_path / "again.onnx")
+    from trainer.warm_start import net_from_onnx
+    with pytest.raises(ValueError, match="quantised convolutions"):
+        net_from_onnx(tiny_int8)
+
+
+def test_quantize_cli(tiny_onnx, tmp_path, capsys):
+    out = tmp_path / "q.onnx"
+    assert export_main(["quantize", str(tiny_onnx), "-o", str(out), "--sets", "1"]) == 0
+    assert "calibrated on" in capsys.readouterr().out
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert json.loads(meta[CARD_KEY])["quantization"]["sets_per_side"] == 1
+    assert export_main(["quantize", str(tmp_path / "none.onnx"), "-o", str(out)]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert export_main(["quantize", str(tiny_onnx), "-o", str(out), "--sets", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sets must be >= 1, got 0" in err
+
+
+def test_bundled_quantised_models_come_from_the_float_files_kept_in_the_repo():
+    # the float file is what `python -m export quantize` needs to reproduce the bundled one,
+    # and what benchmarks/quantized.py compares it with
+    quantised = [m for m in diffsampler_rt.list_models()
+                 if diffsampler_rt.load(m).card.get("weights") == "int8"]
+    assert quantised, "no quantised bundled model"
+    for name in quantised:
+        card = diffsampler_rt.load(name).card
+        source = ROOT / "models" / "float" / f"{name}.onnx"
+        assert network_hash(source) == card["quantization"]["float_network_sha1"], name
+        float_card = diffsampler_rt.load(source).card
+        assert float_card["weights"] in ("fp16", "fp32")
+        assert {k: v for k, v in float_card.items() if k not in ("weights", "provenance")} == {
+            k: v for k, v in card.items() if k not in ("weights", "provenance", "quantization")}
