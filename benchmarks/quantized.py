@@ -7,13 +7,15 @@ draw of the float model changes) and of the quantised model from noise A. Column
 radial-spectrum MAE to the float model's noise-A sets, the relative differences of the
 means of the fidelity report's per-set statistics, and how far the quantised model moves
 each point from where the float model put it (same noise; median over points, in units of
-the mean spacing 1/sqrt(n)). Then one denoiser evaluation's time at k = 32 (n = 1024),
-batch 32, float and quantised interleaved in one process. The reference sampler is not
-run here: the fidelity report measures the bundled (quantised) file against it.
-Writes benchmarks/results/quantized.md (each model's section kept in
+the mean spacing 1/sqrt(n)). With ``--timing-only`` (on an otherwise idle machine): one
+denoiser evaluation at k = 32 (batch 32) and ``generate`` at n = 1024 (batched and alone),
+float and quantised interleaved in one process. The reference sampler is not run here: the
+fidelity report measures the bundled (quantised) file against it. Writes
+benchmarks/results/quantized.md (each model's section, and the timing table, kept in
 benchmarks/results/quantized/).
 
     python benchmarks/quantized.py [--models gbn_fast] [--sets 128] [--sets-4096 32]
+    python benchmarks/quantized.py --timing-only
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import argparse
 import datetime as dt
 import os
 import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -82,14 +85,44 @@ def rows_at(pool, fmodel, qmodel, n: int, sets: int) -> list[str]:
     return lines
 
 
-def speed(float_path: Path, q_path: Path, rounds: int = 6) -> tuple[float, float]:
-    """Median ms per set of one evaluation at k = 32, batch 32, the two interleaved."""
-    sessions = [session(str(float_path)), session(str(q_path))]
-    times: list[list[float]] = [[], []]
+def generate_ms(model, batch: int) -> float:
+    t = time.perf_counter()
+    model.generate(1024, batch, seed=0)
+    return 1000 * (time.perf_counter() - t) / batch
+
+
+def timing_row(name: str, float_path: Path, rounds: int) -> str:
+    """Float and 8-bit interleaved in this process, medians over ``rounds``: one evaluation
+    at k = 32 (batch 32), and ``generate`` at n = 1024 per set in a batch of 32 and alone
+    (the card's defaults and repairs included)."""
+    paths = [float_path, diffsampler_rt.model.resolve(name)]
+    sessions = [session(str(p)) for p in paths]
+    models = [diffsampler_rt.model.Model(p) for p in paths]
+    for m in models:
+        m.generate(1024, 2, seed=0)  # warm-up
+    ev, batched, alone = ([[], []] for _ in range(3))
     for _ in range(rounds):
-        for i, s in enumerate(sessions):
-            times[i].append(ms_per_set(plain(s, 32), 32, 5))
-    return float(np.median(times[0])), float(np.median(times[1]))
+        for i in (0, 1):
+            ev[i].append(ms_per_set(plain(sessions[i], 32), 32, 5))
+            batched[i].append(generate_ms(models[i], 32))
+            alone[i].append(generate_ms(models[i], 1))
+    f, q = ([float(np.median(x[i])) for x in (ev, batched, alone)] for i in (0, 1))
+    return (f"| {name} | {f[0]:.2f} / {q[0]:.2f} ({100 * (q[0] / f[0] - 1):+.0f} %) | "
+            f"{f[1]:.1f} / {q[1]:.1f} ({100 * (q[1] / f[1] - 1):+.0f} %) | "
+            f"{f[2]:.1f} / {q[2]:.1f} ({100 * (q[2] / f[2] - 1):+.0f} %) |")
+
+
+def timing(models: list[str], float_dir: Path, rounds: int) -> list[str]:
+    lines = [f"## Timing, {dt.date.today().isoformat()}", "",
+             f"n = 1024, ms per set, float / 8-bit, medians of {rounds} interleaved rounds in "
+             f"one process ({os.cpu_count()} cores, onnxruntime's default threads). Run "
+             "with nothing else on the machine (`--timing-only`).", "",
+             "| model | one evaluation (batch 32) | generate, batch of 32 | generate, alone |",
+             "|---|---|---|---|"]
+    for name in models:
+        lines.append(timing_row(name, float_of(name, float_dir), rounds))
+        print(lines[-1], flush=True)
+    return lines + [""]
 
 
 def main() -> None:
@@ -103,10 +136,16 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "quantized.md")
     p.add_argument("--report-only", action="store_true",
                    help="only rebuild quantized.md from the kept sections")
+    p.add_argument("--timing-only", action="store_true",
+                   help="only time float vs 8-bit (kept as quantized/timing.md)")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds")
     a = p.parse_args()
-    models = [] if a.report_only else (a.models or quantised())
     kept = a.out.parent / "quantized"
     kept.mkdir(parents=True, exist_ok=True)
+    if a.timing_only:
+        (kept / "timing.md").write_text("\n".join(timing(a.models or quantised(), a.float_dir,
+                                                         a.rounds)))
+    models = [] if a.report_only or a.timing_only else (a.models or quantised())
     header = ["# 8-bit convolutions vs the float model, same noise", "",
               f"`python benchmarks/quantized.py` ({os.cpu_count()} cores). Per row: the "
               "model's sets vs the float model's sets from the same noise (A); the first row "
@@ -115,34 +154,31 @@ def main() -> None:
               f"±{100 * TOL_MIND:.0f} %). *moved*: median distance of a point from the "
               "float model's point of the same cell, in mean spacings 1/sqrt(n) (an "
               "OT-embedded model may swap a whole neighbourhood, so its tail is long). "
-              "Default solver, steps and repairs of each card. The evaluation times are "
-              "taken in the same process, float and 8-bit interleaved, so their ratio holds "
-              "while other jobs run but their values do not (benchmarks/results/speed.md has "
-              "clean timings). Each model's section is kept in benchmarks/results/quantized/ "
-              "and says when it was run.", ""]
+              "Default solver, steps and repairs of each card. Each model's section is kept "
+              "in benchmarks/results/quantized/ and says when it was run; the timing table "
+              "comes last.", ""]
     with ProcessPoolExecutor(a.workers) as pool:
         for name in models:
             fpath = float_of(name, a.float_dir)
             qpath = diffsampler_rt.model.resolve(name)
             fmodel, qmodel = diffsampler_rt.load(fpath), diffsampler_rt.load(name)
             card = qmodel.card
-            fast, slow = speed(fpath, qpath)
             lines = [f"## {name}", "",
                      f"{card['default_solver']} {card['default_steps']} steps; "
                      f"{card['quantization']['method']}; calibrated on "
                      f"{card['quantization']['feeds']} solver inputs at grid sides "
                      f"{', '.join(map(str, card['quantization']['sides']))}. Measured "
                      f"{dt.date.today().isoformat()}. File: {qpath.stat().st_size / 2**20:.2f} "
-                     f"MiB (float: {fpath.stat().st_size / 2**20:.2f} MiB). One evaluation at "
-                     f"n = 1024, batch 32: {fast:.2f} ms per set float, {slow:.2f} ms 8-bit "
-                     f"({100 * (slow / fast - 1):+.0f} %).", "",
+                     f"MiB (float: {fpath.stat().st_size / 2**20:.2f} MiB).", "",
                      "| n (sets) | model | spectrum MAE to float | "
                      + " | ".join(LABELS[k] for k in STATS) + " | moved |",
                      "|---|---|---|" + "---|" * len(STATS) + "---|"]
             for n in a.sizes:
                 lines += rows_at(pool, fmodel, qmodel, n, a.sets_4096 if n >= 4096 else a.sets)
             (kept / f"{name}.md").write_text("\n".join(lines + [""]))
-    sections = [p.read_text() for p in sorted(kept.glob("*.md"))]
+    timed = kept / "timing.md"
+    sections = [p.read_text() for p in sorted(kept.glob("*.md")) if p != timed]
+    sections += [timed.read_text()] if timed.exists() else []
     a.out.write_text("\n".join(header + sections))
     print(f"wrote {a.out}")
 

@@ -140,3 +140,21 @@ def test_solver_sweep_settings_may_override_the_guidance():
     np = pytest.importorskip("numpy")
     a, b = plain.generate(256, 1, seed=0), guided.generate(256, 1, seed=0)
     assert a.shape == b.shape and not np.array_equal(a, b)
+
+
+def test_quantized_report_runs_and_checks_the_float_file(tmp_path):
+    out = tmp_path / "quantized.md"
+    res = subprocess.run([sys.executable, "benchmarks/quantized.py", "--models", "ldbn_fast",
+                          "--sizes", "256", "--sets", "3", "--workers", "1", "--out", str(out)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = out.read_text()
+    assert "## ldbn_fast" in md and "| 256 (3) | **8-bit, same noise** |" in md
+    # another float file than the one the card names is refused
+    wrong = tmp_path / "floats"
+    wrong.mkdir()
+    (wrong / "ldbn_fast.onnx").write_bytes((ROOT / "models/float/gbn_fast.onnx").read_bytes())
+    res = subprocess.run([sys.executable, "benchmarks/quantized.py", "--models", "ldbn_fast",
+                          "--float-dir", str(wrong), "--out", str(out)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert res.returncode == 1 and "is not the network ldbn_fast was quantised from" in res.stderr
