@@ -39,6 +39,8 @@ def test_list_and_info(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
     assert "rank1" in out and "sobol_owen" in out
+    lines = {line.split()[0]: line for line in out.splitlines()}
+    assert "8-bit convolutions" in lines["gbn_fast"] and "8-bit" not in lines["gbn"]
     assert main(["info", "rank1"]) == 0
     assert '"sampler": "rank1"' in capsys.readouterr().out
 
