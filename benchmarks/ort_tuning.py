@@ -2,9 +2,10 @@
 
 Times one network evaluation (k = 32, i.e. n = 1024) of a bundled model per set, for
 batch sizes, intra-op thread counts, two single-thread sessions splitting a batch, the
-fp16-stored file against its float32 form, and static int8 quantisation of the
-convolutions (QLinearConv; this CPU has AVX-512 VNNI); plus an operator profile of the
-runtime's own session. Writes benchmarks/results/ort_tuning.md.
+fp16-stored file against its float32 form and its 8-bit convolutions (``python -m export
+quantize``, as the bundled ``_fast`` models are made; for those, the float file in
+models/float/ is the starting point); plus operator profiles, float and 8-bit. Writes
+benchmarks/results/ort_tuning.md.
 
     python benchmarks/ort_tuning.py [--model sot_fast] [--repeats 10]
 """
@@ -28,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from diffsampler_rt.model import resolve, session_options  # noqa: E402
+from export.quantize import quantize  # noqa: E402
 
 K = 32
 
@@ -86,23 +88,14 @@ def float32_copy(src: str, dst: str) -> None:
     ort.InferenceSession(src, sess_options=opts, providers=["CPUExecutionProvider"])
 
 
-def int8_copy(src: str, dst: str) -> None:
-    from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType,
-                                          quantize_static)
-
-    class Reader(CalibrationDataReader):  # activations over the whole noise range
-        def __init__(self):
-            rng = np.random.default_rng(1)
-            self.feeds = iter({"x": rng.standard_normal((4, 2, K, K)).astype(np.float32),
-                               "t": np.full(4, float(t), dtype=np.float32)}
-                              for t in (999, 700, 400, 100, 10))
-
-        def get_next(self):
-            return next(self.feeds, None)
-
-    quantize_static(src, dst, Reader(), quant_format=QuantFormat.QOperator, per_channel=True,
-                    activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                    op_types_to_quantize=["Conv"])
+def float_file(model: str) -> Path:
+    """The model's float network: the bundled file, or for a bundled 8-bit model the float
+    file it was made from (models/float/)."""
+    path = resolve(model)
+    import diffsampler_rt
+    if diffsampler_rt.load(path).card.get("weights") == "int8":
+        return ROOT / "models" / "float" / path.name
+    return path
 
 
 def op_profile(path: str, batch: int, tmp: str) -> list[tuple[str, float, int]]:
@@ -125,7 +118,7 @@ def main() -> None:
     p.add_argument("--model", default="sot_fast")
     p.add_argument("--repeats", type=int, default=10)
     a = p.parse_args()
-    path = str(resolve(a.model))
+    path = str(float_file(a.model))
     rows = []
     default = session(path)
     one = session(path, threads=1)
@@ -138,11 +131,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         f32, q8 = os.path.join(tmp, "f32.onnx"), os.path.join(tmp, "int8.onnx")
         float32_copy(path, f32)
-        int8_copy(f32, q8)
+        quantize(path, q8)  # as the bundled 8-bit models are made
         files = [(label, ms_per_set(plain(session(f), 32), 32, a.repeats))
-                 for label, f in (("as bundled (fp16-stored weights)", path),
-                                  ("float32 weights", f32), ("int8 convolutions", q8))]
+                 for label, f in (("fp16-stored weights", path), ("float32 weights", f32),
+                                  ("8-bit convolutions (`python -m export quantize`)", q8))]
         profile = op_profile(path, 32, tmp)
+        profile8 = op_profile(q8, 32, tmp)
     lines = [
         "# onnxruntime settings for one denoiser evaluation",
         "",
@@ -162,11 +156,16 @@ def main() -> None:
         "|---|---|",
         *[f"| {label} | {v:.2f} |" for label, v in files],
         "",
-        "Operator profile of the runtime's session (batch 32, share of kernel time):",
+        "Operator profile of the runtime's session (batch 32, share of kernel time), float "
+        "and 8-bit:",
         "",
         "| operator | share | nodes |",
         "|---|---|---|",
         *[f"| {op} | {share:.1f} % | {n} |" for op, share, n in profile],
+        "",
+        "| operator (8-bit) | share | nodes |",
+        "|---|---|---|",
+        *[f"| {op} | {share:.1f} % | {n} |" for op, share, n in profile8],
         "",
     ]
     out = ROOT / "benchmarks" / "results" / "ort_tuning.md"
