@@ -9,7 +9,7 @@ means of the fidelity report's per-set statistics, and how far the quantised mod
 each point from where the float model put it (same noise; median over points, in units of
 the mean spacing 1/sqrt(n)). With ``--timing-only`` (on an otherwise idle machine): one
 denoiser evaluation at k = 32 (batch 32) and ``generate`` at n = 1024 (batched and alone),
-float and quantised interleaved in one process. The reference sampler is not run here: the
+float and quantised alternated, each measured in a fresh process. The reference sampler is not run here: the
 fidelity report measures the bundled (quantised) file against it. Writes
 benchmarks/results/quantized.md (each model's section, and the timing table, kept in
 benchmarks/results/quantized/).
@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
+import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -34,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import STATS, TOL_MEAN, TOL_MIND, set_stats  # noqa: E402
-from benchmarks.ort_tuning import ms_per_set, plain, session  # noqa: E402
+from benchmarks.ort_tuning import ms_per_set, plain  # noqa: E402
 from trainer.distil import network_hash  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
@@ -91,22 +93,30 @@ def generate_ms(model, batch: int) -> float:
     return 1000 * (time.perf_counter() - t) / batch
 
 
+def child_timing(path: str) -> dict:
+    """In a fresh process (one onnxruntime session, nothing else running in it): one
+    evaluation at k = 32 (batch 32), and generate at n = 1024 batched and alone (medians of
+    3 after a warm-up), ms per set."""
+    model = diffsampler_rt.model.Model(path)
+    model.generate(1024, 2, seed=0)  # warm-up
+    ev = ms_per_set(plain(model.session, 32), 32, 5)
+    return {"eval": ev,
+            "batched": float(np.median([generate_ms(model, 32) for _ in range(3)])),
+            "alone": float(np.median([generate_ms(model, 1) for _ in range(3)]))}
+
+
 def timing_row(name: str, float_path: Path, rounds: int) -> str:
-    """Float and 8-bit interleaved in this process, medians over ``rounds``: one evaluation
-    at k = 32 (batch 32), and ``generate`` at n = 1024 per set in a batch of 32 and alone
-    (the card's defaults and repairs included)."""
-    paths = [float_path, diffsampler_rt.model.resolve(name)]
-    sessions = [session(str(p)) for p in paths]
-    models = [diffsampler_rt.model.Model(p) for p in paths]
-    for m in models:
-        m.generate(1024, 2, seed=0)  # warm-up
-    ev, batched, alone = ([[], []] for _ in range(3))
+    """Float and 8-bit alternated, each measurement in a fresh child process (sessions in
+    one process disturb each other's thread pools), medians over ``rounds``."""
+    paths = [str(float_path), str(diffsampler_rt.model.resolve(name))]
+    runs: list[list[dict]] = [[], []]
     for _ in range(rounds):
         for i in (0, 1):
-            ev[i].append(ms_per_set(plain(sessions[i], 32), 32, 5))
-            batched[i].append(generate_ms(models[i], 32))
-            alone[i].append(generate_ms(models[i], 1))
-    f, q = ([float(np.median(x[i])) for x in (ev, batched, alone)] for i in (0, 1))
+            out = subprocess.run([sys.executable, __file__, "--child", paths[i]],
+                                 capture_output=True, text=True, check=True)
+            runs[i].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    f, q = ([float(np.median([r[key] for r in runs[i]])) for key in ("eval", "batched", "alone")]
+            for i in (0, 1))
     return (f"| {name} | {f[0]:.2f} / {q[0]:.2f} ({100 * (q[0] / f[0] - 1):+.0f} %) | "
             f"{f[1]:.1f} / {q[1]:.1f} ({100 * (q[1] / f[1] - 1):+.0f} %) | "
             f"{f[2]:.1f} / {q[2]:.1f} ({100 * (q[2] / f[2] - 1):+.0f} %) |")
@@ -114,9 +124,11 @@ def timing_row(name: str, float_path: Path, rounds: int) -> str:
 
 def timing(models: list[str], float_dir: Path, rounds: int) -> list[str]:
     lines = [f"## Timing, {dt.date.today().isoformat()}", "",
-             f"n = 1024, ms per set, float / 8-bit, medians of {rounds} interleaved rounds in "
-             f"one process ({os.cpu_count()} cores, onnxruntime's default threads). Run "
-             "with nothing else on the machine (`--timing-only`).", "",
+             f"n = 1024, ms per set, float / 8-bit: medians of {rounds} rounds that alternate "
+             "the two, each measurement in a fresh process (one evaluation: median of 5 calls "
+             "after 2 warm-ups; generate: median of 3 calls after a warm-up; "
+             f"{os.cpu_count()} cores, onnxruntime's default threads). Run with nothing else "
+             "on the machine (`--timing-only`).", "",
              "| model | one evaluation (batch 32) | generate, batch of 32 | generate, alone |",
              "|---|---|---|---|"]
     for name in models:
@@ -126,6 +138,9 @@ def timing(models: list[str], float_dir: Path, rounds: int) -> list[str]:
 
 
 def main() -> None:
+    if sys.argv[1:2] == ["--child"]:
+        print(json.dumps(child_timing(sys.argv[2])))
+        return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", nargs="*", help="default: every quantised bundled model")
     p.add_argument("--sizes", type=int, nargs="*", default=[256, 576, 1024, 4096])
