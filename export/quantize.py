@@ -75,7 +75,7 @@ def _float32_file(src: Path, dst: Path) -> None:
 
 def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None = None,
              sets: int = 8, seed: int = 0) -> dict:
-    """Write ``src`` with int8 convolutions to ``dst``; returns the new card.
+    """Write ``src`` with 8-bit convolutions to ``dst``; returns the new card.
 
     Parameters
     ----------
@@ -94,9 +94,7 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
     src, dst = Path(src), Path(dst)
     source = onnx.load(str(src))
     meta = {p.key: p.value for p in source.metadata_props}
-    if CARD_KEY not in meta:
-        raise ValueError(f"{src} has no diffsampler model card")
-    card = json.loads(meta[CARD_KEY])
+    card = parse_card(meta, str(src))  # ModelFormatError (a ValueError) names what is wrong
     if card.get("weights") == "int8":
         raise ValueError(f"{src} is already int8-quantised")
     if sets < 1:
@@ -119,11 +117,11 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
         f32 = Path(tmp) / "f32.onnx"
         _float32_file(src, f32)
         convs = [node.name for node in onnx.load(str(f32)).graph.node if node.op_type == "Conv"]
-        kept = [convs[0], convs[-1]]  # nodes are in topological order: stem and eps head
+        stay_float = [convs[0], convs[-1]]  # nodes are in topological order: stem, eps head
         quantize_static(str(f32), str(dst), Feeds(), quant_format=QuantFormat.QOperator,
                         per_channel=True, activation_type=QuantType.QUInt8,
                         weight_type=QuantType.QUInt8, op_types_to_quantize=["Conv"],
-                        nodes_to_exclude=kept)
+                        nodes_to_exclude=stay_float)
     model = onnx.load(str(dst))
     card = dict(card, weights="int8", quantization={
         "method": METHOD, "sides": list(sides), "sets_per_side": sets, "seed": seed,
