@@ -26,6 +26,30 @@ def model_hash(model: str | Path) -> str:
     return hashlib.sha256(resolve(model).read_bytes()).hexdigest()
 
 
+FLOAT_DIR = ROOT / "models" / "float"
+
+
+def float_source(model: str | Path, float_dir: Path = FLOAT_DIR) -> Path:
+    """The float network of a model: its own file, or for an 8-bit model (card ``"weights":
+    "int8"``) the float file it was quantised from, checked against the hash its card
+    records (SystemExit naming the file otherwise)."""
+    import diffsampler_rt
+    from diffsampler_rt.model import resolve
+    from trainer.distil import network_hash
+    path = resolve(model)
+    card = diffsampler_rt.load(path).card
+    if card.get("weights") != "int8":
+        return path
+    source = float_dir / path.name
+    if not source.exists():
+        raise SystemExit(f"error: {card['name']}'s float model {source} is missing")
+    want, found = card["quantization"]["float_network_sha1"], network_hash(source)
+    if found != want:
+        raise SystemExit(f"error: {source} is not the network {card['name']} was quantised "
+                         f"from (hash {found}, card says {want})")
+    return source
+
+
 def seed_curve(sampler: str) -> np.ndarray | None:
     """The seed paper's mean radial spectrum of ``sampler`` at n = 1024 (79 bins), if any."""
     if not SEED_CSV.exists() or sampler not in SEED_COLUMNS:

@@ -29,7 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from diffsampler_rt.model import resolve, session_options  # noqa: E402
-from export.quantize import quantize  # noqa: E402
+from benchmarks.common import float_source  # noqa: E402
+from export.quantize import float32_file, quantize  # noqa: E402
 
 K = 32
 
@@ -80,24 +81,6 @@ def split_in_two(a, b, batch: int):
     return run
 
 
-def float32_copy(src: str, dst: str) -> None:
-    """The model with its fp16 weights and their Casts folded to float32 initializers."""
-    opts = ort.SessionOptions()
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_BASIC
-    opts.optimized_model_filepath = dst
-    ort.InferenceSession(src, sess_options=opts, providers=["CPUExecutionProvider"])
-
-
-def float_file(model: str) -> Path:
-    """The model's float network: the bundled file, or for a bundled 8-bit model the float
-    file it was made from (models/float/)."""
-    path = resolve(model)
-    import diffsampler_rt
-    if diffsampler_rt.load(path).card.get("weights") == "int8":
-        return ROOT / "models" / "float" / path.name
-    return path
-
-
 def op_profile(path: str, batch: int, tmp: str) -> list[tuple[str, float, int]]:
     sess = session(path, profile=os.path.join(tmp, "prof"))
     run = plain(sess, batch)
@@ -118,7 +101,7 @@ def main() -> None:
     p.add_argument("--model", default="sot_fast")
     p.add_argument("--repeats", type=int, default=10)
     a = p.parse_args()
-    path = str(float_file(a.model))
+    path = str(float_source(a.model))
     rows = []
     default = session(path)
     one = session(path, threads=1)
@@ -130,7 +113,7 @@ def main() -> None:
     split = [ms_per_set(split_in_two(*halves, b), b, a.repeats) for b in (16, 32)]
     with tempfile.TemporaryDirectory() as tmp:
         f32, q8 = os.path.join(tmp, "f32.onnx"), os.path.join(tmp, "int8.onnx")
-        float32_copy(path, f32)
+        float32_file(path, f32)
         quantize(path, q8)  # as the bundled 8-bit models are made
         files = [(label, ms_per_set(plain(session(f), 32), 32, a.repeats))
                  for label, f in (("fp16-stored weights", path), ("float32 weights", f32),

@@ -35,12 +35,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
+from benchmarks.common import FLOAT_DIR, float_source  # noqa: E402
 from benchmarks.fidelity import STATS, TOL_MEAN, TOL_MIND, set_stats  # noqa: E402
 from benchmarks.ort_tuning import ms_per_set, plain  # noqa: E402
-from trainer.distil import network_hash  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
-FLOAT_DIR = ROOT / "models" / "float"
 LABELS = {"ot_energy": "OT energy", "l2_star": "L2*", "gauss_mse": "Gauss MSE",
           "heaviside_mse": "Heaviside MSE", "min_distance": "min dist"}
 
@@ -49,19 +48,6 @@ def quantised() -> list[str]:
     """Bundled models whose card says their convolutions are 8-bit."""
     return [m for m in diffsampler_rt.list_models()
             if diffsampler_rt.load(m).card.get("weights") == "int8"]
-
-
-def float_of(name: str, float_dir: Path) -> Path:
-    """The float model a quantised one was made from, checked against the card's hash."""
-    card = diffsampler_rt.load(name).card
-    path = float_dir / f"{name}.onnx"
-    if not path.exists():
-        raise SystemExit(f"error: {name}'s float model {path} is missing")
-    want = card["quantization"]["float_network_sha1"]
-    if network_hash(path) != want:
-        raise SystemExit(f"error: {path} is not the network {name} was quantised from "
-                         f"(hash {network_hash(path)}, card says {want})")
-    return path
 
 
 def rel(value: float, base: float, tol: float) -> str:
@@ -132,7 +118,7 @@ def timing(models: list[str], float_dir: Path, rounds: int) -> list[str]:
              "| model | one evaluation (batch 32) | generate, batch of 32 | generate, alone |",
              "|---|---|---|---|"]
     for name in models:
-        lines.append(timing_row(name, float_of(name, float_dir), rounds))
+        lines.append(timing_row(name, float_source(name, float_dir), rounds))
         print(lines[-1], flush=True)
     return lines + [""]
 
@@ -174,7 +160,7 @@ def main() -> None:
               "comes last.", ""]
     with ProcessPoolExecutor(a.workers) as pool:
         for name in models:
-            fpath = float_of(name, a.float_dir)
+            fpath = float_source(name, a.float_dir)
             qpath = diffsampler_rt.model.resolve(name)
             fmodel, qmodel = diffsampler_rt.load(fpath), diffsampler_rt.load(name)
             card = qmodel.card

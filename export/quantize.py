@@ -63,7 +63,7 @@ def solver_inputs(path: str | Path, sides: Iterable[int], sets: int, seed: int
     return feeds
 
 
-def _float32_file(src: Path, dst: Path) -> None:
+def float32_file(src: str | Path, dst: str | Path) -> None:
     """``src`` with fp16-stored weights folded to float32 initialisers (the quantiser reads
     float32 weights); onnxruntime's basic optimisations do the folding, metadata kept."""
     import onnxruntime as ort
@@ -115,7 +115,7 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
 
     with tempfile.TemporaryDirectory() as tmp:
         f32 = Path(tmp) / "f32.onnx"
-        _float32_file(src, f32)
+        float32_file(src, f32)
         convs = [node.name for node in onnx.load(str(f32)).graph.node if node.op_type == "Conv"]
         stay_float = [convs[0], convs[-1]]  # nodes are in topological order: stem, eps head
         quantize_static(str(f32), str(dst), Feeds(), quant_format=QuantFormat.QOperator,
