@@ -17,6 +17,8 @@ log n between the sizes, the end values beyond).
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
@@ -68,22 +70,28 @@ def square_to_disk(p: np.ndarray) -> np.ndarray:
 def sliced_step(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """One SOT iteration on sets x (c, n, 2) in the unit disk along the angles theta (c, m)
     (or (m,), shared): each point moves by the mean of its m 1-d optimal displacements."""
-    target = disk_quantiles(x.shape[-2])
-    theta = np.broadcast_to(theta, (x.shape[0],) + np.shape(theta)[-1:])
+    c, n = x.shape[0], x.shape[-2]
+    target = disk_quantiles(n)
+    theta = np.broadcast_to(theta, (c,) + np.shape(theta)[-1:])
+    m = theta.shape[-1]
     dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1)  # (c, m, 2)
-    proj = np.einsum("cnk,cmk->cmn", x, dirs)  # sort along the contiguous last axis
-    order = np.argsort(proj, axis=-1)
-    shift = np.empty_like(proj)
-    np.put_along_axis(shift, order, target - np.take_along_axis(proj, order, -1), -1)
-    return x + np.einsum("cmn,cmk->cnk", shift, dirs) / theta.shape[-1]
+    # matmul, not einsum, and one flat gather/scatter, not take/put_along_axis: the argsort
+    # is then most of the cost (1.5x faster at n = 1024, m = 64)
+    proj = dirs @ np.swapaxes(x, -1, -2)  # (c, m, n): sorts along the contiguous last axis
+    flat = (np.argsort(proj, axis=-1) + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
+    shift = np.empty(proj.size)
+    shift[flat] = np.tile(target, c * m) - proj.reshape(-1)[flat]
+    return x + np.swapaxes(shift.reshape(c, m, n), -1, -2) @ dirs / m
 
 
 def polish(points: np.ndarray, iterations: int, directions: int,
-           rngs: list[np.random.Generator]) -> np.ndarray:
+           rngs: list[np.random.Generator], *, workers: int | None = None) -> np.ndarray:
     """``iterations`` SOT iterations on each set of ``points`` (c, n, 2) in [0, 1)^2.
 
     ``rngs`` gives one generator per set (each iteration's rotation of the evenly spread
-    directions), so a set's result does not depend on the others in its batch.
+    directions), so a set's result does not depend on the others in its batch, nor on
+    ``workers``: the threads (default: one per CPU, at most one per set) that share the
+    sets; numpy's sort releases the GIL, so they run in parallel.
 
     Examples
     --------
@@ -97,9 +105,21 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     x = square_to_disk(np.asarray(points, dtype=np.float64))
     base = np.arange(directions) * (np.pi / directions)
     turns = np.stack([g.random(iterations) for g in rngs]) * (np.pi / directions)  # (c, K)
-    for i in range(iterations):
-        x = sliced_step(x, base[None, :] + turns[:, i:i + 1])
-    return disk_to_square(x)
+
+    def run(part: slice) -> np.ndarray:
+        y = x[part]
+        for i in range(iterations):
+            y = sliced_step(y, base[None, :] + turns[part, i:i + 1])
+        return y
+
+    c = len(x)
+    w = max(1, min(c, os.cpu_count() or 1) if workers is None else min(c, workers))
+    if w == 1 or iterations == 0:
+        return disk_to_square(run(slice(None)))
+    edges = np.linspace(0, c, w + 1).astype(int)
+    with ThreadPoolExecutor(w) as pool:
+        parts = list(pool.map(run, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]))
+    return disk_to_square(np.concatenate(parts))
 
 
 def iterations_at(spec: dict, n: int) -> int:

@@ -40,6 +40,11 @@ def test_polish_evens_out_white_noise_and_keeps_sets_apart():
     # one generator per set: a set's result does not depend on its batch
     alone = polish(pts[1:2], 16, 64, [np.random.default_rng(6)])
     np.testing.assert_array_equal(alone, out[1:2])
+    # nor on how many threads share the sets
+    for workers in (1, 2, 3):
+        again = polish(pts, 16, 64, [np.random.default_rng(s) for s in (5, 6, 7)],
+                       workers=workers)
+        np.testing.assert_array_equal(again, out)
     np.testing.assert_array_equal(polish(pts, 0, 64, rngs), disk_to_square(square_to_disk(pts)))
 
 
@@ -104,3 +109,23 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
 
 def test_docstring_examples():
     assert doctest.testmod(sliced_ot).failed == 0
+
+
+def test_sliced_step_matches_the_plain_update():
+    # each point moves by the mean over directions of (its quantile - its projection)
+    rng = np.random.default_rng(8)
+    x = square_to_disk(rng.random((3, 50, 2)))
+    theta = rng.random((3, 7)) * np.pi
+    want = x.copy()
+    t = sliced_ot.disk_quantiles(50)
+    for c in range(3):
+        move = np.zeros((50, 2))
+        for a in theta[c]:
+            d = np.array([np.cos(a), np.sin(a)])
+            proj = x[c] @ d
+            rank = np.argsort(np.argsort(proj))
+            move += np.outer(t[rank] - proj, d)
+        want[c] += move / len(theta[c])
+    np.testing.assert_allclose(sliced_ot.sliced_step(x, theta), want, atol=1e-13)
+    shared = sliced_ot.sliced_step(x, theta[0])  # (m,) angles: the same for every set
+    np.testing.assert_allclose(shared[0], want[0], atol=1e-13)
