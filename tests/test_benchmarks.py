@@ -158,3 +158,23 @@ def test_quantized_report_runs_and_checks_the_float_file(tmp_path):
                           "--float-dir", str(wrong), "--out", str(out)],
                          capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert res.returncode == 1 and "is not the network ldbn_fast was quantised from" in res.stderr
+
+
+def test_integration_check_reads_the_cached_reference(tmp_path):
+    import numpy as np
+    from trainer.samplers import sample
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path)}
+    cmd = [sys.executable, "benchmarks/integration_check.py", "sobol_owen", "64", "3", "8",
+           "sobol_owen", "diffsampler_rt/models/sobol_owen.onnx"]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode != 0 and "no cached reference sets" in res.stderr
+    (tmp_path / "reference").mkdir()
+    np.savez(tmp_path / "reference" / "sobol_owen_n64_c8_s1.npz",
+             pts=sample("sobol_owen", 64, count=8, seed=[1, 0]), per_set=0.0)
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("sobol_owen n=64: 3 generated sets per model vs 8 reference")
+    # the bundled name and its path: the same sets, the same figures (timing aside)
+    assert lines[1].split(": ", 1)[1].rsplit("[", 1)[0] == lines[2].split(": ", 1)[1].rsplit("[", 1)[0]
+    assert "Gauss MSE" in lines[1] and "spectrum MAE" in lines[1]

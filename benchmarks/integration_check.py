@@ -1,0 +1,75 @@
+"""Integration errors of model files measured with many generated sets against ALL cached
+reference sets: a closer look than the fidelity report's 64-128 sets a side.
+
+The report compares a model with reference batch A and shows batch B vs A as the floor; for
+the slow samplers (gbn, sot) A has only 64 sets at n = 1024, and the floor of the Gaussian /
+Heaviside MSE is then 6-9 %, wider than the issue's 5 % tolerance. Here the generated side
+has as many sets as wanted (its standard error is printed) and the reference mean uses both
+batches, so two files of one model can be told apart, and a figure near the 5 % line read
+with its error. Needs the reference sets that ``benchmarks/fidelity.py`` cached.
+
+    python benchmarks/integration_check.py SAMPLER N SETS REF_COUNT MODEL [MODEL ...]
+    python benchmarks/integration_check.py gbn 1024 384 128 gbn old/gbn.onnx
+
+REF_COUNT is the reference file's count (2 x the report's sets per side: 128 for gbn and
+sot at 1024, 256 for poisson_disk). Prints one line per model; writes nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import diffsampler_rt  # noqa: E402
+from benchmarks.fidelity import _EXACT, _GAUSS, _HEAVI, _stats_chunk  # noqa: E402
+from trainer.data import cache_dir  # noqa: E402
+from trainer.stats import integration_mse, l2_star, min_distance  # noqa: E402
+from trainer.stats.spectrum import radial_spectrum, spectrum_mae  # noqa: E402
+
+
+def statistics(pts: np.ndarray) -> dict[str, np.ndarray]:
+    return {"Gauss MSE": integration_mse(pts, _GAUSS, _EXACT["g"]),
+            "Heaviside MSE": integration_mse(pts, _HEAVI, _EXACT["h"]),
+            "L2*": l2_star(pts), "min dist": min_distance(pts)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("sampler")
+    p.add_argument("n", type=int)
+    p.add_argument("sets", type=int, help="generated sets per model")
+    p.add_argument("ref_count", type=int, help="sets in the cached reference file")
+    p.add_argument("models", nargs="+", help="bundled names or .onnx paths")
+    p.add_argument("--seed", type=int, default=77)
+    a = p.parse_args()
+    path = cache_dir() / "reference" / f"{a.sampler}_n{a.n}_c{a.ref_count}_s1.npz"
+    if not path.exists():
+        sys.exit(f"error: no cached reference sets {path} (run benchmarks/fidelity.py first)")
+    ref = np.load(path)["pts"]
+    _stats_chunk(ref[:1])  # fills the exact integrals
+    rs = statistics(ref)
+    spec = radial_spectrum(ref)[1]
+    half = len(ref) // 2
+    print(f"{a.sampler} n={a.n}: {a.sets} generated sets per model vs {len(ref)} reference "
+          "sets; reference halves B vs A: "
+          + ", ".join(f"{k} {100 * (v[half:].mean() / v[:half].mean() - 1):+.1f} %"
+                      for k, v in rs.items()))
+    for name in a.models:
+        t = time.perf_counter()
+        pts = diffsampler_rt.load(name).generate(a.n, count=a.sets, seed=a.seed)
+        g = statistics(pts)
+        cells = [f"{k} {100 * (v.mean() / rs[k].mean() - 1):+.1f} % "
+                 f"(±{100 * v.std() / np.sqrt(len(v)) / rs[k].mean():.1f})" for k, v in g.items()]
+        print(f"{name}: " + ", ".join(cells)
+              + f", spectrum MAE {spectrum_mae(radial_spectrum(pts)[1], spec):.4f}"
+              + f" [{time.perf_counter() - t:.0f} s]", flush=True)
+
+
+if __name__ == "__main__":
+    main()
