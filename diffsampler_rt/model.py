@@ -72,19 +72,27 @@ class Model:
 
     def __init__(self, model: str | os.PathLike, *, threads: int | None = None):
         self.path = resolve(model)
-        opts = session_options(None if threads is None else _validate.integer("threads", threads))
-        try:
-            self.session = ort.InferenceSession(str(self.path), sess_options=opts,
-                                                providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own non-standard exception types
-            raise ModelFormatError(f"{self.path} is not a readable ONNX model: "
-                                   f"{str(exc).splitlines()[0][:200]}") from None
+        threads = None if threads is None else _validate.integer("threads", threads)
+        self.session = self._session(session_options(threads))
         meta = self.session.get_modelmeta().custom_metadata_map
         self.card: dict[str, Any] = parse_card(meta, str(self.path))
+        if self.card.get("sliced_ot"):
+            # the polish sorts on every core right after the network; onnxruntime's idle
+            # workers spin for a while after each run and would take those cores (sot_fast,
+            # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it)
+            self.session = self._session(session_options(threads, spinning=False))
         names = {i.name for i in self.session.get_inputs()}
         if names != {"x", "t"}:
             raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")
         self.alpha_bar = alphas_cumprod(self.card["schedule"])
+
+    def _session(self, opts: "ort.SessionOptions") -> "ort.InferenceSession":
+        try:
+            return ort.InferenceSession(str(self.path), sess_options=opts,
+                                        providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own non-standard exception types
+            raise ModelFormatError(f"{self.path} is not a readable ONNX model: "
+                                   f"{str(exc).splitlines()[0][:200]}") from None
 
     @property
     def name(self) -> str:
@@ -241,18 +249,23 @@ class Model:
             yield pts if density is None else warp(pts, density)
 
 
-def session_options(threads: int | None = None) -> "ort.SessionOptions":
+def session_options(threads: int | None = None, *,
+                    spinning: bool = True) -> "ort.SessionOptions":
     """The onnxruntime session options every :class:`Model` uses (benchmarks reuse them).
 
     All graph optimisations; one inter-op thread (the U-Net is one chain of operators run
     sequentially, so the cores go to intra-op parallelism); ``threads`` intra-op threads
-    (default: onnxruntime's, one per physical core).
+    (default: onnxruntime's, one per physical core). ``spinning=False`` makes idle workers
+    sleep at once instead of spinning: one set alone gets slower (gbn_fast at n = 1024:
+    ~45 instead of ~36 ms), batches do not, and work that follows a run gets the cores.
     """
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     opts.inter_op_num_threads = 1
     if threads is not None:
         opts.intra_op_num_threads = threads
+    if not spinning:
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     return opts
 
 

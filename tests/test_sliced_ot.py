@@ -93,6 +93,11 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
                         "--sliced-ot-directions", "16"]) == 0
     m = diffsampler_rt.Model(path)
     assert m.card["sliced_ot"] == {"directions": 16, "n": [64, 256], "iterations": [0, 4]}
+    # a polishing model's session does not spin after a run (the polish wants the cores)
+    spin = "session.intra_op.allow_spinning"
+    assert m.session.get_session_options().get_session_config_entry(spin) == "0"
+    with pytest.raises(RuntimeError):  # not set: onnxruntime's default (spinning)
+        diffsampler_rt.Model(tiny_onnx).session.get_session_options().get_session_config_entry(spin)
     np.testing.assert_array_equal(m.generate(64, 3, seed=2), plain[64])  # 0 iterations
     polished = m.generate(256, 3, seed=2)
     assert not np.allclose(polished, plain[256]) and np.all((polished >= 0) & (polished < 1))
