@@ -112,8 +112,11 @@ def polish(points: np.ndarray, iterations: int, directions: int,
             y = sliced_step(y, base[None, :] + turns[part, i:i + 1])
         return y
 
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 1):
+        raise ValueError(f"workers must be an integer >= 1 or None, got {workers!r}")
     c = len(x)
-    w = max(1, min(c, os.cpu_count() or 1) if workers is None else min(c, workers))
+    w = max(1, min(c, (os.cpu_count() or 1) if workers is None else workers))
     if w == 1 or iterations == 0:
         return disk_to_square(run(slice(None)))
     edges = np.linspace(0, c, w + 1).astype(int)

@@ -45,6 +45,9 @@ def test_polish_evens_out_white_noise_and_keeps_sets_apart():
         again = polish(pts, 16, 64, [np.random.default_rng(s) for s in (5, 6, 7)],
                        workers=workers)
         np.testing.assert_array_equal(again, out)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="workers must be an integer"):
+            polish(pts, 1, 8, rngs, workers=bad)
     np.testing.assert_array_equal(polish(pts, 0, 64, rngs), disk_to_square(square_to_disk(pts)))
 
 
