@@ -60,6 +60,12 @@ class Model:
     threads : int, optional
         onnxruntime intra-op threads (default: onnxruntime's choice, all cores).
 
+    Notes
+    -----
+    A model whose card asks for a sliced-OT polish runs onnxruntime without spinning idle
+    workers, so the polish's threads get the cores; its session is therefore created twice
+    at load (the card is read from the first), ~60 ms once.
+
     Examples
     --------
     >>> import diffsampler_rt

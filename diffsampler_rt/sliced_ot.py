@@ -80,7 +80,7 @@ def sliced_step(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
     proj = dirs @ np.swapaxes(x, -1, -2)  # (c, m, n): sorts along the contiguous last axis
     flat = (np.argsort(proj, axis=-1) + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
     shift = np.empty(proj.size)
-    shift[flat] = np.tile(target, c * m) - proj.reshape(-1)[flat]
+    shift[flat] = (target - proj.reshape(-1)[flat].reshape(-1, n)).ravel()  # sorted rows
     return x + np.swapaxes(shift.reshape(c, m, n), -1, -2) @ dirs / m
 
 
