@@ -10,9 +10,13 @@ with its error. Needs the reference sets that ``benchmarks/fidelity.py`` cached.
 
     python benchmarks/integration_check.py SAMPLER N SETS REF_COUNT MODEL [MODEL ...]
     python benchmarks/integration_check.py gbn 1024 384 128 gbn old/gbn.onnx
+    python benchmarks/integration_check.py sot 4096 32 16 sot --ref-seeds 1,2
 
 REF_COUNT is the reference file's count (2 x the report's sets per side: 128 for gbn and
-sot at 1024, 256 for poisson_disk). Prints one line per model; writes nothing.
+sot at 1024, 256 for poisson_disk). ``--ref-seeds`` pools the files of several seeds
+(``{sampler}_n{N}_c{REF_COUNT}_s{seed}.npz``; seed 1 is the report's, others are drawn with
+``benchmarks.common.cached_sets``), which cuts the reference's noise where the sampler is
+slow. Prints one line per model; writes nothing.
 """
 from __future__ import annotations
 
@@ -48,16 +52,26 @@ def main() -> None:
     p.add_argument("ref_count", type=int, help="sets in the cached reference file")
     p.add_argument("models", nargs="+", help="bundled names or .onnx paths")
     p.add_argument("--seed", type=int, default=77)
+    p.add_argument("--ref-seeds", default="1", metavar="S,S,...",
+                   help="seeds of the cached reference files to pool (default 1)")
     a = p.parse_args()
-    path = cache_dir() / "reference" / f"{a.sampler}_n{a.n}_c{a.ref_count}_s1.npz"
-    if not path.exists():
-        sys.exit(f"error: no cached reference sets {path} (run benchmarks/fidelity.py first)")
-    ref = np.load(path)["pts"]
+    try:
+        seeds = sorted({int(v) for v in a.ref_seeds.split(",")})
+    except ValueError:
+        sys.exit(f"error: --ref-seeds must be integers separated by commas, got {a.ref_seeds!r}")
+    parts = []
+    for s in seeds:
+        path = cache_dir() / "reference" / f"{a.sampler}_n{a.n}_c{a.ref_count}_s{s}.npz"
+        if not path.exists():
+            sys.exit(f"error: no cached reference sets {path} (run benchmarks/fidelity.py "
+                     "first; other seeds: benchmarks.common.cached_sets)")
+        parts.append(np.load(path)["pts"])
+    ref = np.concatenate(parts)
     rs = statistics(ref)
     spec = radial_spectrum(ref)[1]
     half = len(ref) // 2
     print(f"{a.sampler} n={a.n}: {a.sets} generated sets per model vs {len(ref)} reference "
-          "sets; reference halves B vs A: "
+          f"sets (seeds {', '.join(map(str, seeds))}); reference halves B vs A: "
           + ", ".join(f"{k} {100 * (v[half:].mean() / v[:half].mean() - 1):+.1f} %"
                       for k, v in rs.items()))
     for name in a.models:

@@ -178,3 +178,13 @@ def test_integration_check_reads_the_cached_reference(tmp_path):
     # the bundled name and its path: the same sets, the same figures (timing aside)
     assert lines[1].split(": ", 1)[1].rsplit("[", 1)[0] == lines[2].split(": ", 1)[1].rsplit("[", 1)[0]
     assert "Gauss MSE" in lines[1] and "spectrum MAE" in lines[1]
+    # a second seed's file is pooled with the first; a missing one is named
+    res = subprocess.run(cmd[:7] + ["--ref-seeds", "1,2"], capture_output=True, text=True,
+                         cwd=ROOT, env=env, timeout=600)
+    assert res.returncode != 0 and "sobol_owen_n64_c8_s2.npz" in res.stderr
+    np.savez(tmp_path / "reference" / "sobol_owen_n64_c8_s2.npz",
+             pts=sample("sobol_owen", 64, count=8, seed=[2, 0]), per_set=0.0)
+    res = subprocess.run(cmd[:7] + ["--ref-seeds", "2,1"], capture_output=True, text=True,
+                         cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert "vs 16 reference sets (seeds 1, 2)" in res.stdout

@@ -1,6 +1,6 @@
 """Fit the density of a non-uniform sampler from its example sets (see diffsampler_rt.density).
 
-Two fits, both ending in the table that :func:`diffsampler_rt.density.unwarp` uses to take
+Three fits, all ending in the table that :func:`diffsampler_rt.density.unwarp` uses to take
 the sets to the uniform square before the grid embedding, and that the runtime inverts:
 
 - ``"histogram"``: the pooled points on a bins x bins histogram. Simple, but its density is
@@ -21,6 +21,7 @@ the sets to the uniform square before the grid embedding, and that the runtime i
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -192,11 +193,15 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
     return _table(cells @ c @ cells.T, floor), degree
 
 
+@lru_cache(maxsize=4)
 def _quadrature(nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """(nodes^2, 2) tensor Gauss-Legendre nodes on the unit square and their weights."""
+    """(nodes^2, 2) tensor Gauss-Legendre nodes on the unit square and their weights
+    (cached: every fit and normalisation of a degree search uses the same ones)."""
     t, w = legendre.leggauss(nodes)
     t, w = (t + 1) / 2, w / 2
-    return np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
+    q, w2 = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
+    q.flags.writeable = w2.flags.writeable = False  # shared by every caller
+    return q, w2
 
 
 def _log_partition(s: np.ndarray, w2: np.ndarray) -> tuple[float, np.ndarray]:
