@@ -67,13 +67,16 @@ def square_to_disk(p: np.ndarray) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
 
 
-def sliced_step(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """One SOT iteration on sets x (c, n, 2) in the unit disk along the angles theta (c, m)
-    (or (m,), shared): each point moves by the mean of its m 1-d optimal displacements."""
+#: directions per block of an iteration: the displacement is summed block by block in a
+#: fixed order, so the blocks can go to threads without changing a bit of the result
+BLOCK = 32
+
+
+def _displacement(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2)."""
     c, n = x.shape[0], x.shape[-2]
-    target = disk_quantiles(n)
-    theta = np.broadcast_to(theta, (c,) + np.shape(theta)[-1:])
     m = theta.shape[-1]
+    target = disk_quantiles(n)
     dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1)  # (c, m, 2)
     # matmul, not einsum, and one flat gather/scatter, not take/put_along_axis: the argsort
     # is then most of the cost (1.5x faster at n = 1024, m = 64)
@@ -81,7 +84,28 @@ def sliced_step(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
     flat = (np.argsort(proj, axis=-1) + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
     shift = np.empty(proj.size)
     shift[flat] = (target - proj.reshape(-1)[flat].reshape(-1, n)).ravel()  # sorted rows
-    return x + np.swapaxes(shift.reshape(c, m, n), -1, -2) @ dirs / m
+    return np.swapaxes(shift.reshape(c, m, n), -1, -2) @ dirs
+
+
+def _blocks(theta: np.ndarray) -> list[np.ndarray]:
+    return [theta[:, i:i + BLOCK] for i in range(0, theta.shape[-1], BLOCK)]
+
+
+def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | None = None
+                ) -> np.ndarray:
+    """One SOT iteration on sets x (c, n, 2) in the unit disk along the angles theta (c, m)
+    (or (m,), shared): each point moves by the mean of its m 1-d optimal displacements.
+
+    The directions go in blocks of :data:`BLOCK`, on ``pool``'s threads if given (numpy's
+    sort and matmul release the GIL); the result is the same either way."""
+    theta = np.broadcast_to(theta, (x.shape[0],) + np.shape(theta)[-1:])
+    blocks = _blocks(theta)
+    parts = (pool.map(lambda t: _displacement(x, t), blocks) if pool is not None and
+             len(blocks) > 1 else map(lambda t: _displacement(x, t), blocks))
+    total = None
+    for part in parts:  # in block order whatever the threads
+        total = part if total is None else total + part
+    return x + total / theta.shape[-1]
 
 
 def polish(points: np.ndarray, iterations: int, directions: int,
@@ -90,8 +114,9 @@ def polish(points: np.ndarray, iterations: int, directions: int,
 
     ``rngs`` gives one generator per set (each iteration's rotation of the evenly spread
     directions), so a set's result does not depend on the others in its batch, nor on
-    ``workers``: the threads (default: one per CPU, at most one per set) that share the
-    sets; numpy's sort releases the GIL, so they run in parallel.
+    ``workers``: the threads (default: one per CPU) that share the sets, or, with fewer
+    sets than threads, each iteration's blocks of directions (a set alone, a big n); numpy's
+    sort releases the GIL, so they run in parallel.
 
     Examples
     --------
@@ -106,19 +131,22 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     base = np.arange(directions) * (np.pi / directions)
     turns = np.stack([g.random(iterations) for g in rngs]) * (np.pi / directions)  # (c, K)
 
-    def run(part: slice) -> np.ndarray:
+    def run(part: slice, pool: ThreadPoolExecutor | None = None) -> np.ndarray:
         y = x[part]
         for i in range(iterations):
-            y = sliced_step(y, base[None, :] + turns[part, i:i + 1])
+            y = sliced_step(y, base[None, :] + turns[part, i:i + 1], pool=pool)
         return y
 
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise ValueError(f"workers must be an integer >= 1 or None, got {workers!r}")
     c = len(x)
-    w = max(1, min(c, (os.cpu_count() or 1) if workers is None else workers))
+    w = max(1, (os.cpu_count() or 1) if workers is None else workers)
     if w == 1 or iterations == 0:
         return disk_to_square(run(slice(None)))
+    if c < w:  # too few sets to go round: the threads share each iteration's directions
+        with ThreadPoolExecutor(min(w, -(-directions // BLOCK))) as pool:
+            return disk_to_square(run(slice(None), pool))
     edges = np.linspace(0, c, w + 1).astype(int)
     with ThreadPoolExecutor(w) as pool:
         parts = list(pool.map(run, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]))

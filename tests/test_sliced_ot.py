@@ -45,6 +45,11 @@ def test_polish_evens_out_white_noise_and_keeps_sets_apart():
         again = polish(pts, 16, 64, [np.random.default_rng(s) for s in (5, 6, 7)],
                        workers=workers)
         np.testing.assert_array_equal(again, out)
+    # a set alone: the threads share each iteration's blocks of directions, same bits
+    one = [polish(pts[:1], 4, 3 * sliced_ot.BLOCK + 5, [np.random.default_rng(5)],
+                  workers=w) for w in (1, 2, 3, None)]
+    for other in one[1:]:
+        np.testing.assert_array_equal(other, one[0])
     for bad in (0, -1, 1.5, True):
         with pytest.raises(ValueError, match="workers must be an integer"):
             polish(pts, 1, 8, rngs, workers=bad)
