@@ -72,36 +72,49 @@ def square_to_disk(p: np.ndarray) -> np.ndarray:
 BLOCK = 32
 
 
-def _displacement(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2)."""
+def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.ndarray:
+    """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2).
+
+    ``exact=False`` sorts the projections by 16-bit keys (numpy's radix sort, ~5x faster
+    than argsort on floats): points closer than 2^-15 along a direction may swap targets."""
     c, n = x.shape[0], x.shape[-2]
     m = theta.shape[-1]
     target = disk_quantiles(n)
     dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1)  # (c, m, 2)
-    # matmul, not einsum, and one flat gather/scatter, not take/put_along_axis: the argsort
-    # is then most of the cost (1.5x faster at n = 1024, m = 64)
+    # matmul, not einsum, and one flat scatter of ranks, not take/put_along_axis: the sort
+    # is then most of the cost
     proj = dirs @ np.swapaxes(x, -1, -2)  # (c, m, n): sorts along the contiguous last axis
-    flat = (np.argsort(proj, axis=-1) + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
-    shift = np.empty(proj.size)
-    shift[flat] = (target - proj.reshape(-1)[flat].reshape(-1, n)).ravel()  # sorted rows
-    return np.swapaxes(shift.reshape(c, m, n), -1, -2) @ dirs
+    if exact:
+        order = np.argsort(proj, axis=-1)
+    else:  # |proj| <= 1 in the disk
+        keys = np.clip((proj + 1) * 32767.5, 0, 65535).astype(np.uint16)
+        order = np.argsort(keys, axis=-1, kind="stable")
+    flat = (order + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
+    rank = np.empty(proj.size, dtype=np.intp)
+    rank[flat] = np.tile(np.arange(n), c * m)
+    shift = target[rank].reshape(c, m, n) - proj
+    return np.swapaxes(shift, -1, -2) @ dirs
 
 
 def _blocks(theta: np.ndarray) -> list[np.ndarray]:
     return [theta[:, i:i + BLOCK] for i in range(0, theta.shape[-1], BLOCK)]
 
 
-def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | None = None
-                ) -> np.ndarray:
+def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | None = None,
+                exact: bool = True) -> np.ndarray:
     """One SOT iteration on sets x (c, n, 2) in the unit disk along the angles theta (c, m)
     (or (m,), shared): each point moves by the mean of its m 1-d optimal displacements.
 
     The directions go in blocks of :data:`BLOCK`, on ``pool``'s threads if given (numpy's
-    sort and matmul release the GIL); the result is the same either way."""
+    sort and matmul release the GIL); the result is the same either way. ``exact=False``
+    sorts each projection by 16-bit keys (2x faster overall; see :func:`polish`)."""
     theta = np.broadcast_to(theta, (x.shape[0],) + np.shape(theta)[-1:])
     blocks = _blocks(theta)
-    parts = (pool.map(lambda t: _displacement(x, t), blocks) if pool is not None and
-             len(blocks) > 1 else map(lambda t: _displacement(x, t), blocks))
+
+    def part(t: np.ndarray) -> np.ndarray:
+        return _displacement(x, t, exact)
+
+    parts = pool.map(part, blocks) if pool is not None and len(blocks) > 1 else map(part, blocks)
     total = None
     for part in parts:  # in block order whatever the threads
         total = part if total is None else total + part
@@ -117,6 +130,12 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     ``workers``: the threads (default: one per CPU) that share the sets, or, with fewer
     sets than threads, each iteration's blocks of directions (a set alone, a big n); numpy's
     sort releases the GIL, so they run in parallel.
+
+    Unlike the sampler, the polish sorts each projection by 16-bit keys (resolution
+    2^-15 on the disk's [-1, 1]), which halves its cost: points closer than that along a
+    direction may swap their targets there. Against the exact sort, 8 iterations of 128
+    directions on 1024-point sets move points by 2.5e-5 rms (0.1 % of their spacing) and
+    leave the Gaussian integration error as it was.
 
     Examples
     --------
@@ -134,7 +153,7 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     def run(part: slice, pool: ThreadPoolExecutor | None = None) -> np.ndarray:
         y = x[part]
         for i in range(iterations):
-            y = sliced_step(y, base[None, :] + turns[part, i:i + 1], pool=pool)
+            y = sliced_step(y, base[None, :] + turns[part, i:i + 1], pool=pool, exact=False)
         return y
 
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)

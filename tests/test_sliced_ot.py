@@ -142,3 +142,17 @@ def test_sliced_step_matches_the_plain_update():
     np.testing.assert_allclose(sliced_ot.sliced_step(x, theta), want, atol=1e-13)
     shared = sliced_ot.sliced_step(x, theta[0])  # (m,) angles: the same for every set
     np.testing.assert_allclose(shared[0], want[0], atol=1e-13)
+
+
+def test_the_polish_sorts_by_16_bit_keys_close_to_the_exact_step():
+    rng = np.random.default_rng(2)
+    for n in (256, 1024, 4096):
+        x = square_to_disk(rng.random((4, n, 2)))
+        for _ in range(3):
+            x = sliced_ot.sliced_step(x, np.arange(64) * np.pi / 64 + rng.random() * np.pi / 64)
+        theta = np.arange(64) * np.pi / 64 + 0.01
+        exact, keyed = sliced_ot.sliced_step(x, theta), sliced_ot.sliced_step(x, theta, exact=False)
+        assert not np.array_equal(exact, keyed)  # some near-ties swap
+        spacing = np.sqrt(np.pi / n)  # mean point spacing in the disk
+        assert np.abs(exact - keyed).max() < 0.02 * spacing
+        assert np.sqrt(np.mean((exact - keyed) ** 2)) < 1e-3 * spacing
