@@ -116,8 +116,8 @@ def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | 
 
     parts = pool.map(part, blocks) if pool is not None and len(blocks) > 1 else map(part, blocks)
     total = None
-    for part in parts:  # in block order whatever the threads
-        total = part if total is None else total + part
+    for piece in parts:  # in block order whatever the threads
+        total = piece if total is None else total + piece
     return x + total / theta.shape[-1]
 
 
