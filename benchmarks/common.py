@@ -74,6 +74,11 @@ def generate(pool, name: str, n: int, count: int, seed: int, chunk: int):
     return np.concatenate([p for p, _ in parts]), sum(t for _, t in parts) / count
 
 
+def reference_path(name: str, n: int, count: int, seed: int) -> Path:
+    """Where :func:`cached_sets` keeps the sets of reference sampler ``name``."""
+    return cache_dir() / "reference" / f"{name}_n{n}_c{count}_s{seed}.npz"
+
+
 def cached_sets(pool, name: str, n: int, count: int, seed: int):
     """The sets of :func:`generate`, cached on disk (deterministic in the arguments).
 
@@ -81,7 +86,7 @@ def cached_sets(pool, name: str, n: int, count: int, seed: int):
 
     Returns (sets, seconds per set when they were made, whether they came from the cache).
     """
-    path = cache_dir() / "reference" / f"{name}_n{n}_c{count}_s{seed}.npz"
+    path = reference_path(name, n, count, seed)
     if path.exists():
         z = np.load(path)
         return z["pts"], float(z["per_set"]), True

@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import integration_errors  # noqa: E402
-from trainer.data import cache_dir  # noqa: E402
+from benchmarks.common import reference_path  # noqa: E402
 from trainer.stats import l2_star, min_distance  # noqa: E402
 from trainer.stats.spectrum import radial_spectrum, spectrum_mae  # noqa: E402
 
@@ -61,7 +61,7 @@ def main() -> None:
         sys.exit(f"error: --ref-seeds must be integers separated by commas, got {a.ref_seeds!r}")
     parts = []
     for s in seeds:
-        path = cache_dir() / "reference" / f"{a.sampler}_n{a.n}_c{a.ref_count}_s{s}.npz"
+        path = reference_path(a.sampler, a.n, a.ref_count, s)
         if not path.exists():
             sys.exit(f"error: no cached reference sets {path} (run benchmarks/fidelity.py "
                      "first; other seeds: benchmarks.common.cached_sets)")

@@ -89,9 +89,9 @@ def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.nd
     else:  # |proj| <= 1 in the disk
         keys = np.clip((proj + 1) * 32767.5, 0, 65535).astype(np.uint16)
         order = np.argsort(keys, axis=-1, kind="stable")
-    flat = (order + (np.arange(c * m) * n).reshape(c, m, 1)).ravel()
+    flat = order + (np.arange(c * m) * n).reshape(c, m, 1)  # indices into the flat rows
     rank = np.empty(proj.size, dtype=np.intp)
-    rank[flat] = np.tile(np.arange(n), c * m)
+    rank[flat] = np.arange(n)  # broadcast along each row: no (c, m, n) copy of the ranks
     shift = target[rank].reshape(c, m, n) - proj
     return np.swapaxes(shift, -1, -2) @ dirs
 

@@ -193,15 +193,11 @@ def fit_density_legendre(sets: Sequence[np.ndarray], bins: int, *, max_degree: i
     return _table(cells @ c @ cells.T, floor), degree
 
 
-@lru_cache(maxsize=4)
 def _quadrature(nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """(nodes^2, 2) tensor Gauss-Legendre nodes on the unit square and their weights
-    (cached: every fit and normalisation of a degree search uses the same ones)."""
+    """(nodes^2, 2) tensor Gauss-Legendre nodes on the unit square and their weights."""
     t, w = legendre.leggauss(nodes)
     t, w = (t + 1) / 2, w / 2
-    q, w2 = np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
-    q.flags.writeable = w2.flags.writeable = False  # shared by every caller
-    return q, w2
+    return np.stack(np.meshgrid(t, t, indexing="ij"), -1).reshape(-1, 2), np.outer(w, w).ravel()
 
 
 def _log_partition(s: np.ndarray, w2: np.ndarray) -> tuple[float, np.ndarray]:
@@ -248,20 +244,30 @@ def _features(p: np.ndarray, degree: int) -> np.ndarray:
     return (bx[:, :, None] * by[:, None, :]).reshape(len(p), -1)
 
 
+@lru_cache(maxsize=2)
+def _node_features(degree: int, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The basis at the quadrature nodes and their weights (cached: a degree search fits and
+    normalises every size at one degree before it moves to the next)."""
+    q, w2 = _quadrature(nodes)
+    feats = _features(q, degree)
+    feats.flags.writeable = w2.flags.writeable = False  # shared by every caller
+    return feats, w2
+
+
 def fit_log_density(groups: Sequence[np.ndarray], degree: int, *,
                     nodes: int = 96) -> np.ndarray:
     """theta ((degree + 1)^2,), x index first, zero constant term: the log-density series of
     the pooled ``groups`` fitted by maximum likelihood (up to its normalising constant)."""
     p = np.concatenate([np.asarray(g, dtype=np.float64).reshape(-1, 2) for g in groups])
-    q, w2 = _quadrature(nodes)
-    feats = _features(q, degree)[:, 1:]  # the constant is log Z's job
-    theta = _loglik_fit(_features(p, degree)[:, 1:].mean(axis=0), feats, w2)
+    feats, w2 = _node_features(degree, nodes)
+    # the constant is log Z's job
+    theta = _loglik_fit(_features(p, degree)[:, 1:].mean(axis=0), feats[:, 1:], w2)
     return np.concatenate([[0.0], theta])
 
 
 def _log_norm(theta: np.ndarray, degree: int, nodes: int = 96) -> float:
-    q, w2 = _quadrature(nodes)
-    return _log_partition(_features(q, degree) @ theta, w2)[0]
+    feats, w2 = _node_features(degree, nodes)
+    return _log_partition(feats @ theta, w2)[0]
 
 
 def choose_log_degree(groups: Sequence[np.ndarray], max_degree: int
