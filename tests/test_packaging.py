@@ -41,3 +41,9 @@ def test_wheel_requires_only_numpy_and_onnxruntime(wheel):
 def test_bundled_models_are_small():
     for path in (ROOT / "diffsampler_rt" / "models").glob("*.onnx"):
         assert path.stat().st_size <= 4_000_000, path.name
+
+
+def test_wheel_states_its_licence(wheel):
+    z = zipfile.ZipFile(wheel)
+    meta = z.read(next(n for n in z.namelist() if n.endswith("METADATA"))).decode()
+    assert "License-Expression: MIT" in meta.splitlines()
