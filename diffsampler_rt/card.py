@@ -116,6 +116,11 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: {problem}")
     if "density" in card and (problem := check_table(card["density"])) is not None:
         raise ModelFormatError(f"{source}: model card field 'density' {problem}")
+    floor = card.get("density_floor")  # informational: the share of uniform mass in the table
+    if floor is not None and ("density" not in card or isinstance(floor, bool)
+                              or not isinstance(floor, (int, float)) or not 0 < floor < 1):
+        raise ModelFormatError(f"{source}: model card field 'density_floor' must be a number in "
+                               f"(0, 1) next to a 'density', got {floor!r}")
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:

@@ -6,6 +6,9 @@
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D]] [--min-spacing C|N:C,...|none]``:
 change the sampling defaults in an exported model's card.
 
+``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
+density with another floor (the share of uniform mass in each cell).
+
 ``python -m export reexport MODEL.onnx -o OUT.onnx --attention-window W``: the same network
 with windowed (W cells per side) or, with W = 0, global self-attention.
 
@@ -147,6 +150,28 @@ def format_spacing(spec: float | dict | None) -> str:
     return "none" if spec is None else f"{spec:g}"
 
 
+def density_floor_main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m export density-floor",
+                                description="re-tabulate a non-uniform model's density with "
+                                            "another floor")
+    p.add_argument("model", type=Path)
+    p.add_argument("--floor", type=float, required=True,
+                   help="mass added to every cell, a fraction of the mean cell mass, in (0, 1)")
+    args = p.parse_args(argv)
+    if not args.model.exists():
+        print(f"error: model {args.model} not found", file=sys.stderr)
+        return 2
+    from .defaults import set_density_floor
+    try:
+        card = set_density_floor(args.model, args.floor)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.model}: density table ({len(card['density']['x_cdf']) - 1} bins) now has "
+          f"floor {card['density_floor']:g}")
+    return 0
+
+
 def reexport_main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m export reexport",
                                 description="re-export a model with another attention window")
@@ -211,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
         return set_defaults_main(argv[1:])
     if argv[:1] == ["reexport"]:
         return reexport_main(argv[1:])
+    if argv[:1] == ["density-floor"]:
+        return density_floor_main(argv[1:])
     if argv[:1] == ["quantize"]:
         return quantize_main(argv[1:])
     p = argparse.ArgumentParser(prog="python -m export", description=__doc__)

@@ -74,3 +74,34 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
     onnx.save(model, str(path))
     return card
+
+
+#: the floor of density tables in cards without a ``density_floor`` (made before it existed)
+OLD_FLOOR = 1e-3
+
+
+def set_density_floor(path: str | Path, floor: float) -> dict:
+    """Re-tabulate the density of a non-uniform model in ``path`` with a new floor (the share
+    of uniform mass in every cell, ``trainer.density.FLOOR``), in place; returns the card.
+
+    The fitted density is recovered from the table (less its old floor, the card's
+    ``density_floor``, 1e-3 if absent); the net is unchanged. Its training sets were mapped
+    with the old table, which differs from the new by at most about the old floor in CDF.
+    """
+    from trainer.density import refloor
+    model = onnx.load(str(path))
+    props = {p.key: p for p in model.metadata_props}
+    if CARD_KEY not in props:
+        raise ValueError(f"{path} has no diffsampler model card")
+    card = json.loads(props[CARD_KEY].value)
+    if "density" not in card:
+        raise ValueError(f"{path} is not a non-uniform model (its card has no density)")
+    old = card.get("density_floor", OLD_FLOOR)
+    card["density"] = refloor(card["density"], old, floor)
+    card["density_floor"] = floor
+    card["provenance"] = (card.get("provenance", "") + f"; density table re-floored from "
+                          f"{old:g} to {floor:g} (python -m export density-floor)")
+    props[CARD_KEY].value = json.dumps(card, sort_keys=True)
+    parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
+    onnx.save(model, str(path))
+    return card

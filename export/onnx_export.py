@@ -165,6 +165,9 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
                       extra=state.get("card_extra"))
     if state.get("density") is not None:  # non-uniform: the runtime maps the sets back
         card["density"] = state["density"]
+        # the table's floor (trainer.density.FLOOR), which `python -m export density-floor`
+        # can change; configs from before the field had 1e-3
+        card["density_floor"] = state["config"]["data"].get("density_floor", 1e-3)
     out = export_model(net, card, path, fp16_weights=fp16_weights)
     diffs = check_parity(net, out, sides=parity_sides, tolerance=tolerance) if parity_sides else {}
     return out, diffs

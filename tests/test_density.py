@@ -12,8 +12,9 @@ import diffsampler_rt
 from diffsampler_rt.card import CARD_KEY, parse_card
 from diffsampler_rt.density import check_table, unwarp, warp
 from diffsampler_rt.errors import ModelFormatError
-from trainer.density import (choose_degree, choose_degree_across_sizes, choose_log_degree,
-                             fit_density, fit_density_legendre, fit_density_log_legendre)
+from trainer.density import (FLOOR, choose_degree, choose_degree_across_sizes,
+                             choose_log_degree, fit_density, fit_density_legendre,
+                             fit_density_log_legendre, refloor)
 from trainer.samplers.densities import ramp_unwarp
 
 
@@ -59,6 +60,23 @@ def test_fit_recovers_a_known_density():
     u = np.random.default_rng(2).random((100_000, 2))
     counts = np.histogram(warp(u, table)[:, 0], bins=4, range=(0, 1))[0] / len(u)
     np.testing.assert_allclose(counts, [1 / 16, 3 / 16, 5 / 16, 7 / 16], atol=0.005)
+
+
+def test_refloor_matches_a_fit_with_the_new_floor():
+    sets = ramp_points(16 * 256, 3).reshape(16, 256, 2)
+    for fit in (lambda f: fit_density(sets, 16, floor=f),
+                lambda f: fit_density_legendre(sets, 16, max_degree=4, floor=f)[0]):
+        got = refloor(fit(1e-3), 1e-3, 1e-6)
+        for key in ("x_cdf", "y_cdf"):
+            np.testing.assert_allclose(got[key], fit(1e-6)[key], rtol=0, atol=1e-12)
+    # the floor mixes that share of uniform mass in: 1e-3 moved the ramp's x-CDF by 2.4e-4
+    exact = {"x_cdf": (np.linspace(0, 1, 129) ** 2).tolist(),
+             "y_cdf": np.tile(np.linspace(0, 1, 129), (128, 1)).tolist()}
+    for floor, shift in ((1e-3, 2.5e-4), (FLOOR, 2.5e-7)):
+        moved = np.abs(np.array(refloor(exact, 1e-300, floor)["x_cdf"]) - exact["x_cdf"])
+        assert 0.9 * shift < moved.max() < shift
+    with pytest.raises(ValueError, match="new floor must be a number in"):
+        refloor(exact, 1e-3, 0.0)
 
 
 def test_smooth_fit_beats_the_histogram_on_a_known_density():
@@ -165,6 +183,10 @@ def test_bad_tables_named():
     with pytest.raises(ModelFormatError, match="'density' must be an object"):
         parse_card({CARD_KEY: json.dumps({**card, "density": [1, 2]})}, "m")
     assert parse_card({CARD_KEY: json.dumps({**card, "density": good})}, "m")["density"] == good
+    for bad in ({"density": good, "density_floor": 0}, {"density_floor": 1e-6},
+                {"density": good, "density_floor": True}):
+        with pytest.raises(ModelFormatError, match="'density_floor' must be a number in"):
+            parse_card({CARD_KEY: json.dumps({**card, **bad})}, "m")
 
 
 def _with_card(src, dst, **fields):
@@ -225,6 +247,7 @@ def test_training_pools_are_uniformised(monkeypatch, tmp_path):
 def test_density_goes_from_training_to_the_card(monkeypatch, tmp_path, capsys):
     from tests.conftest import tiny_config
     from export.onnx_export import export_checkpoint
+    from trainer.data import Batches
     from trainer.train import Trainer
 
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
@@ -235,6 +258,15 @@ def test_density_goes_from_training_to_the_card(monkeypatch, tmp_path, capsys):
     out, _ = export_checkpoint(ckpt, tmp_path / "m.onnx", parity_sides=None)
     m = diffsampler_rt.Model(out)
     assert m.card["density"] == tr.batches.density
+    assert m.card["density_floor"] == cfg.data.density_floor == FLOOR
+    # re-tabulating with another floor gives the table a fit with that floor makes
+    from export.__main__ import main as export_main
+    assert export_main(["density-floor", str(out), "--floor", "1e-3"]) == 0
+    card = diffsampler_rt.Model(out).card
+    refit = Batches(replace(cfg.data, density_floor=1e-3), seed=cfg.seed).density
+    for key in ("x_cdf", "y_cdf"):
+        np.testing.assert_allclose(card["density"][key], refit[key], rtol=0, atol=1e-12)
+    assert card["density_floor"] == 1e-3 and "re-floored from 1e-06 to 0.001" in card["provenance"]
     pts = m.generate(16, 2, seed=0)
     assert pts.shape == (2, 16, 2) and np.all((pts >= 0) & (pts < 1))
     from trainer.__main__ import main

@@ -13,7 +13,7 @@ from diffsampler_rt.density import unwarp
 from diffsampler_rt.grid import decode
 
 from .config import DataConfig
-from .density import fit_density, fit_density_legendre, fit_density_log_legendre
+from .density import FLOOR, fit_density, fit_density_legendre, fit_density_log_legendre
 from .embedding import embed, symmetries
 from .samplers import TOROIDAL, sample
 
@@ -75,7 +75,8 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
 
 def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
                sides: tuple[int, ...] = (), fit: str = "histogram",
-               max_degree: int = 16) -> tuple[dict[int, np.ndarray], dict[str, list]]:
+               max_degree: int = 16,
+               floor: float = FLOOR) -> tuple[dict[int, np.ndarray], dict[str, list]]:
     """Fit the density to the pooled sets of ``sides`` (default: the largest side) and
     re-embed every pool after the density's map to the uniform square."""
     sides = sides or (max(pools),)
@@ -87,10 +88,11 @@ def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
     if fit in smooth:
         # the degree: what the sets of every pooled size share (their edge effects differ)
         table, _ = smooth[fit]([points[k] for k in sides], bins, max_degree=max_degree,
-                               sizes=[points[k] for k in sorted(points)]
+                               floor=floor, sizes=[points[k] for k in sorted(points)]
                                if len(points) > 1 else None)
     else:
-        table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins)
+        table = fit_density(np.concatenate([points[k].reshape(-1, 2) for k in sides]), bins,
+                            floor=floor)
     return ({k: embed(unwarp(p, table), embedding).astype(np.float32)
              for k, p in points.items()}, table)
 
@@ -118,7 +120,7 @@ class Batches:
                                  "and shifts = 1: the density is fitted to the pooled sets")
             self.pools, self.density = uniformise(self.pools, cfg.embedding, cfg.density_bins,
                                                   cfg.density_sides, cfg.density_fit,
-                                                  cfg.density_max_degree)
+                                                  cfg.density_max_degree, cfg.density_floor)
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:
         """One float32 array (B_k, 2, k, k) per size, offsets times the offset scale."""
