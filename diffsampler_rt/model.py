@@ -12,10 +12,11 @@ import onnxruntime as ort
 
 from . import _validate
 from ._progress import Progress
-from .card import parse_card
+from .card import CARD_KEY, parse_card
 from .density import warp
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified
+from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
@@ -63,8 +64,8 @@ class Model:
     Notes
     -----
     A model whose card asks for a sliced-OT polish runs onnxruntime without spinning idle
-    workers, so the polish's threads get the cores; its session is therefore created twice
-    at load (the card is read from the first), ~60 ms once.
+    workers, so the polish's threads get the cores (the card is read from the file before
+    the session is made: :mod:`diffsampler_rt.metadata`).
 
     Examples
     --------
@@ -79,14 +80,22 @@ class Model:
     def __init__(self, model: str | os.PathLike, *, threads: int | None = None):
         self.path = resolve(model)
         threads = None if threads is None else _validate.integer("threads", threads)
-        self.session = self._session(session_options(threads))
-        meta = self.session.get_modelmeta().custom_metadata_map
+        try:  # the card first: the session's options depend on it
+            meta = read_metadata(self.path)
+        except (OSError, WireFormatError):
+            meta = {}
+        session = None
+        if CARD_KEY not in meta:  # onnxruntime has the last word (and the error message)
+            session = self._session(session_options(threads))
+            meta = session.get_modelmeta().custom_metadata_map
         self.card: dict[str, Any] = parse_card(meta, str(self.path))
-        if self.card.get("sliced_ot"):
-            # the polish sorts on every core right after the network; onnxruntime's idle
-            # workers spin for a while after each run and would take those cores (sot_fast,
-            # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it)
-            self.session = self._session(session_options(threads, spinning=False))
+        # the polish sorts on every core right after the network; onnxruntime's idle
+        # workers spin for a while after each run and would take those cores (sot_fast,
+        # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it)
+        polishing = bool(self.card.get("sliced_ot"))
+        if session is None or polishing:
+            session = self._session(session_options(threads, spinning=not polishing))
+        self.session = session
         names = {i.name for i in self.session.get_inputs()}
         if names != {"x", "t"}:
             raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")

@@ -1,0 +1,55 @@
+"""The runtime reads the model card from the ONNX file itself, before any session."""
+import doctest
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+
+from diffsampler_rt import metadata
+from diffsampler_rt.metadata import WireFormatError, read_metadata
+from diffsampler_rt.model import MODELS_DIR
+
+
+@pytest.mark.parametrize("path", sorted(MODELS_DIR.glob("*.onnx")), ids=lambda p: p.stem)
+def test_reads_what_onnxruntime_reads(path):
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert read_metadata(path) == dict(session.get_modelmeta().custom_metadata_map)
+
+
+def test_entries_and_edge_cases(tmp_path):
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])])
+    model = helper.make_model(graph)
+    # non-ASCII text, an empty value, a repeated key (the last wins, as in onnxruntime)
+    for key, value in (("a", "é ∑ 点"), ("empty", ""), ("a", "second")):
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    path = tmp_path / "m.onnx"
+    onnx.save(model, str(path))
+    assert read_metadata(path) == {"a": "second", "empty": ""}
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert read_metadata(path) == dict(session.get_modelmeta().custom_metadata_map)
+    data = path.read_bytes()
+    (tmp_path / "cut.onnx").write_bytes(data[:-3])  # cut inside the last entry
+    with pytest.raises(WireFormatError):
+        read_metadata(tmp_path / "cut.onnx")
+    (tmp_path / "junk.onnx").write_bytes(b"not an onnx file at all")
+    with pytest.raises(WireFormatError, match="wire type"):
+        read_metadata(tmp_path / "junk.onnx")
+    (tmp_path / "empty.onnx").write_bytes(b"")
+    assert read_metadata(tmp_path / "empty.onnx") == {}
+    rng = np.random.default_rng(0)  # random bytes: an error or a dict, never anything else
+    for _ in range(200):
+        junk = rng.integers(0, 256, rng.integers(1, 64)).astype(np.uint8)
+        (tmp_path / "r.onnx").write_bytes(junk.tobytes())
+        try:
+            assert isinstance(read_metadata(tmp_path / "r.onnx"), dict)
+        except WireFormatError:
+            pass
+
+
+def test_docstring_examples():
+    assert doctest.testmod(metadata).failed == 0
