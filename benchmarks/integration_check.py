@@ -16,7 +16,8 @@ REF_COUNT is the reference file's count (2 x the report's sets per side: 128 for
 sot at 1024, 256 for poisson_disk). ``--ref-seeds`` pools the files of several seeds
 (``{sampler}_n{N}_c{REF_COUNT}_s{seed}.npz``; seed 1 is the report's, others are drawn with
 ``benchmarks.common.cached_sets``), which cuts the reference's noise where the sampler is
-slow. Prints one line per model; writes nothing.
+slow. Non-uniform samplers (sot_ramp, gbn_blob) are measured after the exact unwarping to
+the uniform square, both sides. Prints one line per model; writes nothing.
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import integration_errors  # noqa: E402
 from benchmarks.common import reference_path  # noqa: E402
+from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import l2_star, min_distance  # noqa: E402
 from trainer.stats.spectrum import radial_spectrum, spectrum_mae  # noqa: E402
 
@@ -66,7 +68,9 @@ def main() -> None:
             sys.exit(f"error: no cached reference sets {path} (run benchmarks/fidelity.py "
                      "first; other seeds: benchmarks.common.cached_sets)")
         parts.append(np.load(path)["pts"])
-    ref = np.concatenate(parts)
+    # non-uniform samplers: every figure after the exact unwarping, as in the fidelity report
+    unwarp = UNWARP.get(a.sampler) or (lambda p: p)
+    ref = unwarp(np.concatenate(parts))
     rs = statistics(ref)
     spec = radial_spectrum(ref)[1]
     half = len(ref) // 2
@@ -76,7 +80,7 @@ def main() -> None:
                       for k, v in rs.items()))
     for name in a.models:
         t = time.perf_counter()
-        pts = diffsampler_rt.load(name).generate(a.n, count=a.sets, seed=a.seed)
+        pts = unwarp(diffsampler_rt.load(name).generate(a.n, count=a.sets, seed=a.seed))
         g = statistics(pts)
         cells = [f"{k} {100 * (v.mean() / rs[k].mean() - 1):+.1f} % "
                  f"(±{100 * v.std() / np.sqrt(len(v)) / rs[k].mean():.1f})" for k, v in g.items()]

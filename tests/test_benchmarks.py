@@ -188,3 +188,22 @@ def test_integration_check_reads_the_cached_reference(tmp_path):
                          cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     assert "vs 16 reference sets (seeds 1, 2)" in res.stdout
+
+
+def test_integration_check_unwarps_non_uniform_samplers(tmp_path):
+    import numpy as np
+    import diffsampler_rt
+    from benchmarks.fidelity import integration_errors
+    from trainer.samplers.densities import ramp_unwarp
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path)}
+    (tmp_path / "reference").mkdir()
+    u = np.random.default_rng(0).random((8, 64, 2))
+    ref = np.stack([np.sqrt(u[..., 0]), u[..., 1]], -1)  # density 2x: unwarps to u
+    np.savez(tmp_path / "reference" / "sot_ramp_n64_c8_s1.npz", pts=ref, per_set=0.0)
+    cmd = [sys.executable, "benchmarks/integration_check.py", "sot_ramp", "64", "3", "8",
+           "sot_ramp"]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    gen = ramp_unwarp(diffsampler_rt.generate("sot_ramp", 64, 3, seed=77))
+    want = integration_errors(gen)["gauss_mse"].mean() / integration_errors(u)["gauss_mse"].mean()
+    assert f"Gauss MSE {100 * (want - 1):+.1f} %" in res.stdout.splitlines()[1]
