@@ -75,25 +75,31 @@ BLOCK = 32
 def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.ndarray:
     """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2).
 
-    ``exact=False`` sorts the projections by 16-bit keys (numpy's radix sort, ~5x faster
-    than argsort on floats): points closer than 2^-15 along a direction may swap targets."""
+    ``exact=False`` is the polish's cheaper step: it sorts the projections by 16-bit keys
+    (numpy's radix sort, ~5x faster than argsort on floats), so points closer than 2^-15
+    along a direction may swap targets, and works in float32 (half the memory traffic; the
+    keys are far coarser than its rounding)."""
     c, n = x.shape[0], x.shape[-2]
     m = theta.shape[-1]
-    target = disk_quantiles(n)
-    dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1)  # (c, m, 2)
+    dtype = np.float64 if exact else np.float32
+    target = disk_quantiles(n).astype(dtype, copy=False)
+    dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1).astype(dtype)  # (c, m, 2)
     # matmul, not einsum, and one flat scatter of ranks, not take/put_along_axis: the sort
     # is then most of the cost
-    proj = dirs @ np.swapaxes(x, -1, -2)  # (c, m, n): sorts along the contiguous last axis
+    proj = dirs @ np.swapaxes(x, -1, -2).astype(dtype, copy=False)  # (c, m, n)
     if exact:
         order = np.argsort(proj, axis=-1)
-    else:  # |proj| <= 1 in the disk
-        keys = np.clip((proj + 1) * 32767.5, 0, 65535).astype(np.uint16)
-        order = np.argsort(keys, axis=-1, kind="stable")
-    flat = order + (np.arange(c * m) * n).reshape(c, m, 1)  # indices into the flat rows
+    else:  # |proj| <= 1 in the disk; in place: np.clip with scalars is slow on new arrays
+        keys = proj + np.float32(1)
+        keys *= np.float32(32767.5)
+        np.clip(keys, 0, 65535, out=keys)
+        order = np.argsort(keys.astype(np.uint16), axis=-1, kind="stable")
+    order += (np.arange(c * m) * n).reshape(c, m, 1)  # indices into the flat rows
     rank = np.empty(proj.size, dtype=np.intp)
-    rank[flat] = np.arange(n)  # broadcast along each row: no (c, m, n) copy of the ranks
-    shift = target[rank].reshape(c, m, n) - proj
-    return np.swapaxes(shift, -1, -2) @ dirs
+    rank[order] = np.arange(n)  # broadcast along each row: no (c, m, n) copy of the ranks
+    shift = target[rank].reshape(c, m, n)
+    shift -= proj
+    return (np.swapaxes(shift, -1, -2) @ dirs).astype(np.float64, copy=False)
 
 
 def _blocks(theta: np.ndarray) -> list[np.ndarray]:
@@ -135,7 +141,8 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     2^-15 on the disk's [-1, 1]), which halves its cost: points closer than that along a
     direction may swap their targets there. Against the exact sort, 8 iterations of 128
     directions on 1024-point sets move points by 2.5e-5 rms (0.1 % of their spacing) and
-    leave the Gaussian integration error as it was.
+    leave the Gaussian integration error as it was. Each step's displacement is computed in
+    float32 (the points stay float64), another ~1.5x.
 
     Examples
     --------
