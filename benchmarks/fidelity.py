@@ -319,9 +319,14 @@ def model_card_text(c: dict) -> str:
     sym = d.get("symmetries", [0])
     data += f"; symmetries of the square used: {sym}" if len(sym) > 1 else "; no symmetries"
     if d.get("density_bins"):
-        data += (f"; learned after the Rosenblatt map of the density fitted to these sets on a "
-                 f"{d['density_bins']} x {d['density_bins']} histogram, mapped back at "
-                 "generation (diffsampler_rt.density)")
+        b = d["density_bins"]
+        fit = {"legendre": f"as a Legendre series (tabulated {b} x {b})",
+               "log_legendre": f"as the exp of a Legendre series (tabulated {b} x {b})"}.get(
+                   d.get("density_fit", "histogram"), f"on a {b} x {b} histogram")
+        floor = c.get("density_floor", 1e-3)  # tables from before the field: 1e-3
+        data += (f"; learned after the Rosenblatt map of the density fitted to these sets "
+                 f"{fit}, mapped back at generation with a table floor of {floor:g} "
+                 "(diffsampler_rt.density)")
     params = c.get("parameters")
     arch = (f"U-Net base {u.get('base_channels')}, levels {u.get('channel_mult')}, attention at "
             f"{u.get('attention_levels')}" + (f", axial attention at {u['axial_levels']}"
