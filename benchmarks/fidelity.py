@@ -45,6 +45,7 @@ from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from trainer.samplers import SLOW  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
+from trainer.density import OLD_FLOOR  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import (Gaussians, Heavisides, empty_elementary_fraction,  # noqa: E402
                            integration_mse, l2_star, min_distance, ot_energy, radial_spectrum,
@@ -323,7 +324,7 @@ def model_card_text(c: dict) -> str:
         fit = {"legendre": f"as a Legendre series (tabulated {b} x {b})",
                "log_legendre": f"as the exp of a Legendre series (tabulated {b} x {b})"}.get(
                    d.get("density_fit", "histogram"), f"on a {b} x {b} histogram")
-        floor = c.get("density_floor", 1e-3)  # tables from before the field: 1e-3
+        floor = c.get("density_floor", OLD_FLOOR)
         data += (f"; learned after the Rosenblatt map of the density fitted to these sets "
                  f"{fit}, mapped back at generation with a table floor of {floor:g} "
                  "(diffsampler_rt.density)")

@@ -2,7 +2,7 @@
 
 The runtime needs the model card before it opens the onnxruntime session, whose options
 depend on it (a model that polishes its sets with sliced OT runs without spinning workers);
-opening a session only to read the card cost a second session, ~100 ms a load. The ONNX
+opening a session only to read the card cost a second session (sot_fast: ~75 ms a load). The ONNX
 file is a protobuf message; the metadata are top-level field 14, repeated
 ``StringStringEntryProto`` (key = field 1, value = field 2). Only the wire format is read:
 every other top-level field (the graph, ~99 % of the bytes) is skipped by its length.

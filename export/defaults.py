@@ -76,9 +76,6 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     return card
 
 
-#: the floor of density tables in cards without a ``density_floor`` (made before it existed)
-OLD_FLOOR = 1e-3
-
 
 def set_density_floor(path: str | Path, floor: float) -> dict:
     """Re-tabulate the density of a non-uniform model in ``path`` with a new floor (the share
@@ -88,7 +85,7 @@ def set_density_floor(path: str | Path, floor: float) -> dict:
     ``density_floor``, 1e-3 if absent); the net is unchanged. Its training sets were mapped
     with the old table, which differs from the new by at most about the old floor in CDF.
     """
-    from trainer.density import refloor
+    from trainer.density import OLD_FLOOR, refloor
     model = onnx.load(str(path))
     props = {p.key: p for p in model.metadata_props}
     if CARD_KEY not in props:

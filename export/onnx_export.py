@@ -18,6 +18,7 @@ from onnx import helper, numpy_helper
 
 from diffsampler_rt.card import CARD_KEY, FORMAT_KEY, FORMAT_VERSION, describe_devices
 from trainer.config import TrainConfig
+from trainer.density import OLD_FLOOR
 from trainer.train import load_checkpoint, model_from_checkpoint
 from trainer.unet import UNet
 
@@ -166,8 +167,8 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, *, fp16_weights:
     if state.get("density") is not None:  # non-uniform: the runtime maps the sets back
         card["density"] = state["density"]
         # the table's floor (trainer.density.FLOOR), which `python -m export density-floor`
-        # can change; configs from before the field had 1e-3
-        card["density_floor"] = state["config"]["data"].get("density_floor", 1e-3)
+        # can change; configs from before the field had OLD_FLOOR
+        card["density_floor"] = state["config"]["data"].get("density_floor", OLD_FLOOR)
     out = export_model(net, card, path, fp16_weights=fp16_weights)
     diffs = check_parity(net, out, sides=parity_sides, tolerance=tolerance) if parity_sides else {}
     return out, diffs

@@ -38,6 +38,9 @@ FITS = ("histogram", "legendre", "log_legendre")
 #: 2.4e-4, which at n = 4096 made the Gaussian integration error of the model's sets ~20x
 #: the sampler's (SOT integrates smooth functions to ~1e-5 there).
 FLOOR = 1e-6
+#: the floor of every table made before the floor was a setting (cards without a
+#: ``density_floor``, configs without one)
+OLD_FLOOR = 1e-3
 
 
 def _check(points: np.ndarray, bins: int, floor: float) -> np.ndarray:
