@@ -29,12 +29,19 @@ def strip_bounds(k: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
+def wrap(points: np.ndarray) -> np.ndarray:
+    """Points taken modulo 1 into [0, 1)^2 (the torus), float64."""
+    p = np.asarray(points, dtype=np.float64)
+    return np.clip(p - np.floor(p), 0.0, _BELOW_ONE)  # -1e-17 mod 1 rounds to 1.0
+
+
+def decode(grid: np.ndarray, *, stratified: bool = False, toroidal: bool = False) -> np.ndarray:
     """Offsets (..., 2, k, k) in cell units -> points (..., k*k, 2) in [0, 1)^2, float64.
 
     ``stratified=True`` keeps every point inside its own cell (the embedding of a
-    stratified sampler guarantees one point per cell); otherwise points are clipped to
-    the unit square.
+    stratified sampler guarantees one point per cell); ``toroidal=True`` takes points
+    modulo 1 (a net with circular padding works on the torus); otherwise points are
+    clipped to the unit square.
     """
     grid = np.asarray(grid, dtype=np.float64)
     k = grid.shape[-1]
@@ -50,7 +57,7 @@ def decode(grid: np.ndarray, *, stratified: bool = False) -> np.ndarray:
         x = np.clip(x, lo[None, :], hi[None, :])
         y = np.clip(y, lo[:, None], hi[:, None])
     pts = np.stack([x, y], axis=-1).reshape(grid.shape[:-3] + (k * k, 2))
-    return np.clip(pts, 0.0, _BELOW_ONE)
+    return wrap(pts) if toroidal and not stratified else np.clip(pts, 0.0, _BELOW_ONE)
 
 
 def encode_stratified(points: np.ndarray, k: int) -> np.ndarray:

@@ -15,7 +15,7 @@ from ._progress import Progress
 from .card import CARD_KEY, parse_card
 from .density import warp
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
-from .grid import decode, encode_stratified
+from .grid import decode, encode_stratified, wrap
 from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
@@ -166,6 +166,9 @@ class Model:
             ``False`` returns the network's sets as decoded.
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
+            So is a toroidal model's shift: a net with circular padding (``"padding":
+            "circular"``) makes its sets on the torus; they are decoded modulo 1 and each
+            shifted by a uniform random vector, as a toroidal sampler's sets may be.
 
         Returns
         -------
@@ -232,6 +235,9 @@ class Model:
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
         density = self.card.get("density")
+        # a net with circular padding makes sets on the torus: decoded modulo 1 and shifted
+        # by a uniform random vector, so the set's seam is anywhere, as for the sampler
+        toroidal = self.card.get("padding") == "circular"
         scale = float(self.card["offset_scale"])
         eps_fn = self.denoise
         guided = self.card.get("structure_guidance", 0) if imposed else 0
@@ -253,7 +259,10 @@ class Model:
             x = solve(solver, eps_fn, x, self.alpha_bar, ts, noise)
             grid = x / scale
             bar.update(len(sub))
-            pts = decode(grid, stratified=self.card["embedding"] == "stratified")
+            pts = decode(grid, stratified=self.card["embedding"] == "stratified",
+                         toroidal=toroidal)
+            if toroidal:  # after the solver's draws, like a lattice's shift
+                pts = wrap(pts + np.stack([g.random(2) for g in sub])[:, None, :])
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if sliced:

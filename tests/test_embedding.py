@@ -80,3 +80,16 @@ def test_strip_bounds_respect_floor_convention():
         lo, hi = strip_bounds(k)
         np.testing.assert_array_equal(np.floor(lo * k), np.arange(k))
         np.testing.assert_array_equal(np.floor(hi * k), np.arange(k))
+
+
+def test_decode_toroidal_wraps_instead_of_clipping():
+    grid = np.zeros((2, 4, 4))
+    grid[0, 0, 3] = 0.75  # cell (row 0, col 3): x = (3.5 + 0.75) / 4 = 1.0625
+    grid[1, 0, 0] = -1.0  # cell (row 0, col 0): y = (0.5 - 1) / 4 = -0.125
+    clipped, wrapped = decode(grid), decode(grid, toroidal=True)
+    assert clipped[3, 0] == np.nextafter(1.0, 0.0) and clipped[0, 1] == 0.0
+    np.testing.assert_allclose([wrapped[3, 0], wrapped[0, 1]], [0.0625, 0.875])
+    np.testing.assert_array_equal(np.delete(wrapped, [0, 3], axis=0),
+                                  np.delete(clipped, [0, 3], axis=0))
+    tiny = decode(np.full((2, 4, 4), -0.5 - 1e-17), toroidal=True)  # rounds to 1.0 mod 1
+    assert np.all((tiny >= 0) & (tiny < 1))

@@ -145,3 +145,32 @@ def test_iter_sets_streams_the_same_sets_in_blocks():
         m.iter_sets(64, 7, batch=0)  # checked at the call, before iterating
     with pytest.raises(ValueError, match="count must be >= 1"):
         m.iter_sets(64, 0)
+
+
+def test_circular_padding_makes_toroidal_sets(tiny_onnx, tmp_path):
+    import json
+    import onnx
+    from diffsampler_rt.card import CARD_KEY
+    model = onnx.load(str(tiny_onnx))
+    prop = next(p for p in model.metadata_props if p.key == CARD_KEY)
+    card = json.loads(prop.value)
+    for padding in ("circular", "reflect"):
+        prop.value = json.dumps({**card, "padding": padding})
+        onnx.save(model, str(tmp_path / f"{padding}.onnx"))
+    with pytest.raises(ModelFormatError, match="unknown padding 'reflect'"):
+        load(tmp_path / "reflect.onnx")
+    plain = generate(tiny_onnx, 64, 4, seed=3)
+    torus = generate(tmp_path / "circular.onnx", 64, 4, seed=3)
+    assert torus.shape == plain.shape and np.all((torus >= 0) & (torus < 1))
+    np.testing.assert_array_equal(torus, generate(tmp_path / "circular.onnx", 64, 4, seed=3))
+    # the same sets on the torus, each shifted by its own random vector (points the plain
+    # decoding clipped to the square's edge aside)
+    inside = (plain > 0) & (plain < np.nextafter(1.0, 0.0))
+    for s in range(4):
+        d = np.mod(torus[s] - plain[s], 1.0)[inside[s].all(axis=1)]
+        spread = np.abs(((d - d[0] + 0.5) % 1.0) - 0.5).max()
+        assert spread < 1e-9 and len(d) > 32
+    assert len({tuple(np.round(np.mod(torus[s, 0] - plain[s, 0], 1.0), 6)) for s in range(4)}) == 4
+    # the shift is part of the model, like a density: structure=False keeps it
+    bare = generate(tmp_path / "circular.onnx", 64, 4, seed=3, structure=False)
+    np.testing.assert_array_equal(bare, torus)
