@@ -107,6 +107,17 @@ def test_second_stage_starts_from_the_exported_weights(tiny_onnx, tmp_path):
         assert torch.equal(value, tr.ema.state_dict()[name]), name
 
 
+def test_a_circular_net_starts_from_zero_padded_weights(tiny_onnx, tmp_path):
+    from dataclasses import replace
+    from .conftest import TINY_ONNX_UNET
+    ref = torch.load(tiny_onnx.with_suffix(".state"))
+    cfg = replace(tiny_config(**TINY_ONNX_UNET, padding="circular"), init_from=str(tiny_onnx))
+    tr = Trainer(cfg, tmp_path / "torus", progress=False)  # padding has no weights
+    for name, value in tr.model.state_dict().items():
+        assert torch.equal(value, ref[name]), name
+    assert tr.model.cfg.padding == "circular"
+
+
 def test_second_stage_refuses_another_architecture(tiny_onnx, tmp_path):
     from dataclasses import replace
     cfg = replace(tiny_config(), init_from=str(tiny_onnx))  # no coord bits, no axial attention

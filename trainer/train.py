@@ -67,8 +67,10 @@ def initial_weights(cfg: TrainConfig) -> dict[str, torch.Tensor]:
     else:
         net, src_cfg = model_from_checkpoint(load_checkpoint(path))
     weights = net.state_dict()
-    if src_cfg.unet != cfg.unet:
-        more_bits = replace(src_cfg.unet, coord_bits=cfg.unet.coord_bits) == cfg.unet
+    # the padding mode has no weights: a zero-padded net can start a circular one (a torus)
+    if replace(src_cfg.unet, padding=cfg.unet.padding) != cfg.unet:
+        more_bits = replace(src_cfg.unet, coord_bits=cfg.unet.coord_bits,
+                            padding=cfg.unet.padding) == cfg.unet
         if not (more_bits and cfg.unet.coord_bits > src_cfg.unet.coord_bits):
             raise ValueError(f"init_from {cfg.init_from!r} has architecture {src_cfg.unet}, "
                              f"this config needs {cfg.unet}")
