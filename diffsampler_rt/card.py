@@ -122,7 +122,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: model card field 'density_floor' must be a number in "
                                f"(0, 1) next to a 'density', got {floor!r}")
     if card.get("padding", "zeros") not in ("zeros", "circular"):
-        raise ModelFormatError(f"{source}: unknown padding {card['padding']!r} (zeros or circular)")
+        raise ModelFormatError(f"{source}: unknown padding {card['padding']!r} "
+                               "(zeros or circular)")
     if card["prediction"] != "eps":
         raise ModelFormatError(f"{source}: unsupported prediction {card['prediction']!r}")
     try:
