@@ -23,6 +23,14 @@ import sys
 from pathlib import Path
 
 
+def _missing(model: Path) -> bool:
+    """True (after saying so on stderr, for exit status 2) if the model file is not there."""
+    if model.exists():
+        return False
+    print(f"error: model {model} not found", file=sys.stderr)
+    return True
+
+
 def set_defaults_main(argv: list[str]) -> int:
     from diffsampler_rt.solvers import SOLVERS
     from diffsampler_rt.structure import STRUCTURES
@@ -82,8 +90,7 @@ def set_defaults_main(argv: list[str]) -> int:
             print(f"error: --min-spacing must be a number, N:C pairs separated by commas, or "
                   f"none, got {spacing!r}", file=sys.stderr)
             return 2
-    if not args.model.exists():
-        print(f"error: model {args.model} not found", file=sys.stderr)
+    if _missing(args.model):
         return 2
     from .defaults import set_defaults
     try:
@@ -158,8 +165,7 @@ def density_floor_main(argv: list[str]) -> int:
     p.add_argument("--floor", type=float, required=True,
                    help="mass added to every cell, a fraction of the mean cell mass, in (0, 1)")
     args = p.parse_args(argv)
-    if not args.model.exists():
-        print(f"error: model {args.model} not found", file=sys.stderr)
+    if _missing(args.model):
         return 2
     from .defaults import set_density_floor
     try:
@@ -180,8 +186,7 @@ def reexport_main(argv: list[str]) -> int:
     p.add_argument("--attention-window", type=int, required=True,
                    help="cells per window side; 0 for global attention")
     args = p.parse_args(argv)
-    if not args.model.exists():
-        print(f"error: model {args.model} not found", file=sys.stderr)
+    if _missing(args.model):
         return 2
     if args.attention_window < 0:
         print(f"error: --attention-window must be >= 0, got {args.attention_window}",
@@ -215,8 +220,7 @@ def quantize_main(argv: list[str]) -> int:
                    help="calibration sets generated per trained grid side (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the calibration sets")
     args = p.parse_args(argv)
-    if not args.model.exists():
-        print(f"error: model {args.model} not found", file=sys.stderr)
+    if _missing(args.model):
         return 2
     from .quantize import quantize
     try:

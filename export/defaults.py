@@ -22,6 +22,23 @@ from diffsampler_rt.card import CARD_KEY, parse_card
 from diffsampler_rt.solvers import SOLVERS
 
 
+def edit_card(path: str | Path, edit) -> dict:
+    """Apply ``edit`` (a function that changes the card dict in place) to the model card in
+    ``path``, check the result with the runtime's own card checks (known structure,
+    stratified embedding, integer settings, spacing range, density table; ModelFormatError
+    is a ValueError) and save the file in place; returns the card."""
+    model = onnx.load(str(path))
+    props = {p.key: p for p in model.metadata_props}
+    if CARD_KEY not in props:
+        raise ValueError(f"{path} has no diffsampler model card")
+    card = json.loads(props[CARD_KEY].value)
+    edit(card)
+    props[CARD_KEY].value = json.dumps(card, sort_keys=True)
+    parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
+    onnx.save(model, str(path))
+    return card
+
+
 def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
@@ -36,45 +53,37 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
-    model = onnx.load(str(path))
-    props = {p.key: p for p in model.metadata_props}
-    if CARD_KEY not in props:
-        raise ValueError(f"{path} has no diffsampler model card")
-    card = json.loads(props[CARD_KEY].value)
-    T = int(card["schedule"]["num_steps"])
-    if steps is not None and steps > T:
-        raise ValueError(f"steps must be at most the schedule's {T}, got {steps}")
-    if solver is not None:
-        card["default_solver"] = solver
-    if steps is not None:
-        card["default_steps"] = steps
-    if structure == "none":
-        for key in ("structure", "structure_min_side", "structure_guidance", "structure_sides"):
-            card.pop(key, None)
-    elif structure is not None:
-        card["structure"] = structure
-    if structure_min_side is not None:
-        card["structure_min_side"] = structure_min_side
-    if structure_guidance is not None:
-        card["structure_guidance"] = structure_guidance
-    if structure_sides is not None:
-        card["structure_sides"] = structure_sides
-    if sliced_ot == "none":
-        card.pop("sliced_ot", None)
-    elif sliced_ot is not None:
-        card["sliced_ot"] = sliced_ot
-    if min_spacing == "none":
-        card.pop("min_spacing", None)
-    elif min_spacing is not None:
-        card["min_spacing"] = min_spacing
-    props[CARD_KEY].value = json.dumps(card, sort_keys=True)
-    # the runtime's own card checks (known structure, stratified embedding, integer
-    # structure settings, spacing range)
-    # before saving; ModelFormatError is a ValueError
-    parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
-    onnx.save(model, str(path))
-    return card
 
+    def edit(card: dict) -> None:
+        T = int(card["schedule"]["num_steps"])
+        if steps is not None and steps > T:
+            raise ValueError(f"steps must be at most the schedule's {T}, got {steps}")
+        if solver is not None:
+            card["default_solver"] = solver
+        if steps is not None:
+            card["default_steps"] = steps
+        if structure == "none":
+            for key in ("structure", "structure_min_side", "structure_guidance",
+                        "structure_sides"):
+                card.pop(key, None)
+        elif structure is not None:
+            card["structure"] = structure
+        if structure_min_side is not None:
+            card["structure_min_side"] = structure_min_side
+        if structure_guidance is not None:
+            card["structure_guidance"] = structure_guidance
+        if structure_sides is not None:
+            card["structure_sides"] = structure_sides
+        if sliced_ot == "none":
+            card.pop("sliced_ot", None)
+        elif sliced_ot is not None:
+            card["sliced_ot"] = sliced_ot
+        if min_spacing == "none":
+            card.pop("min_spacing", None)
+        elif min_spacing is not None:
+            card["min_spacing"] = min_spacing
+
+    return edit_card(path, edit)
 
 
 def set_density_floor(path: str | Path, floor: float) -> dict:
@@ -86,19 +95,14 @@ def set_density_floor(path: str | Path, floor: float) -> dict:
     with the old table, which differs from the new by at most about the old floor in CDF.
     """
     from trainer.density import OLD_FLOOR, refloor
-    model = onnx.load(str(path))
-    props = {p.key: p for p in model.metadata_props}
-    if CARD_KEY not in props:
-        raise ValueError(f"{path} has no diffsampler model card")
-    card = json.loads(props[CARD_KEY].value)
-    if "density" not in card:
-        raise ValueError(f"{path} is not a non-uniform model (its card has no density)")
-    old = card.get("density_floor", OLD_FLOOR)
-    card["density"] = refloor(card["density"], old, floor)
-    card["density_floor"] = floor
-    card["provenance"] = (card.get("provenance", "") + f"; density table re-floored from "
-                          f"{old:g} to {floor:g} (python -m export density-floor)")
-    props[CARD_KEY].value = json.dumps(card, sort_keys=True)
-    parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
-    onnx.save(model, str(path))
-    return card
+
+    def edit(card: dict) -> None:
+        if "density" not in card:
+            raise ValueError(f"{path} is not a non-uniform model (its card has no density)")
+        old = card.get("density_floor", OLD_FLOOR)
+        card["density"] = refloor(card["density"], old, floor)
+        card["density_floor"] = floor
+        card["provenance"] = (card.get("provenance", "") + f"; density table re-floored from "
+                              f"{old:g} to {floor:g} (python -m export density-floor)")
+
+    return edit_card(path, edit)

@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from .density import FLOOR
 from .unet import UNetConfig
 
 
@@ -45,15 +46,13 @@ class DataConfig:
     density_max_degree: int = 16
     #: mass added to every cell of the density table, a fraction of the mean cell mass
     #: (trainer.density.FLOOR; sot_ramp and gbn_blob were trained with 1e-3)
-    density_floor: float = 1e-6
+    density_floor: float = FLOOR
 
     def __post_init__(self) -> None:
-        from .density import FITS
+        from .density import FITS, check_floor
         if self.density_fit not in FITS:
             raise ValueError(f"density_fit must be one of {FITS}, got {self.density_fit!r}")
-        if not (isinstance(self.density_floor, (int, float)) and 0 < self.density_floor < 1):
-            raise ValueError(f"density_floor must be a number in (0, 1), got "
-                             f"{self.density_floor!r}")
+        check_floor("density_floor", self.density_floor)
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,12 @@ FLOOR = 1e-6
 OLD_FLOOR = 1e-3
 
 
+def check_floor(name: str, floor) -> None:
+    """ValueError naming ``name`` unless ``floor`` is a number in (0, 1)."""
+    if isinstance(floor, bool) or not isinstance(floor, (int, float)) or not 0 < floor < 1:
+        raise ValueError(f"{name} must be a number in (0, 1), got {floor!r}")
+
+
 def _check(points: np.ndarray, bins: int, floor: float) -> np.ndarray:
     if not isinstance(bins, int) or not 1 <= bins <= MAX_BINS:
         raise ValueError(f"bins must be an integer in [1, {MAX_BINS}], got {bins!r}")
@@ -98,9 +104,8 @@ def refloor(table: dict[str, list], old: float, new: float) -> dict[str, list]:
     >>> bool(np.allclose(b["x_cdf"], fit_density(ramp, 16, floor=1e-6)["x_cdf"]))
     True
     """
-    for name, f in (("old", old), ("new", new)):
-        if not (isinstance(f, (int, float)) and 0 < f < 1):
-            raise ValueError(f"{name} floor must be a number in (0, 1), got {f!r}")
+    check_floor("old floor", old)
+    check_floor("new floor", new)
     return _table(cell_masses(table, old), new)
 
 
