@@ -13,6 +13,9 @@ Measured choices (benchmarks/results/quantized.md has the numbers):
   float: quantising the head's output to 256 levels alone raised the Gaussian and Heaviside
   integration errors of gbn_fast by ~8 % at n = 1024, with it float they match the float
   model's to 0.1 %;
+- a circular net's ``Pad(mode="wrap")`` nodes (export/wrap_pad.py) are moved after the
+  QuantizeLinear they feed and written as Slice and Concat: the same values, bit for bit,
+  copied as bytes in blocks (gbn_torus_fast at n = 1024, 32 sets: 35.8 -> 32.9 ms a set);
 - weights are unsigned 8-bit (asymmetric, per channel): x86 CPUs without VNNI multiply
   unsigned x signed bytes with an instruction that saturates, and onnxruntime runs
   unsigned x unsigned without it; on this VNNI CPU both cost the same. 7-bit signed weights
@@ -37,6 +40,8 @@ import numpy as np
 
 from diffsampler_rt.card import CARD_KEY, parse_card
 from trainer.distil import network_hash
+
+from .wrap_pad import quantize_before_wrap_pads, unroll_wrap_pads
 
 #: what the card's ``quantization.method`` records
 METHOD = ("static QOperator: QLinearConv with per-channel uint8 weights and uint8 "
@@ -123,10 +128,16 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
                         weight_type=QuantType.QUInt8, op_types_to_quantize=["Conv"],
                         nodes_to_exclude=stay_float)
     model = onnx.load(str(dst))
-    card = dict(card, weights="int8", quantization={
-        "method": METHOD, "sides": list(sides), "sets_per_side": sets, "seed": seed,
-        "feeds": len(feeds), "float_network_sha1": network_hash(src),
-        "date": _dt.date.today().isoformat()})
+    record = {"method": METHOD, "sides": list(sides), "sets_per_side": sets, "seed": seed,
+              "feeds": len(feeds), "float_network_sha1": network_hash(src),
+              "date": _dt.date.today().isoformat()}
+    # a circular net's padding: moved onto the 8-bit values, then as block copies (exact)
+    moved = quantize_before_wrap_pads(model)
+    unrolled = unroll_wrap_pads(model)
+    if unrolled:
+        record["wrap_pads"] = (f"{moved} of {unrolled} moved after their QuantizeLinear; "
+                               "all as Slice and Concat")
+    card = dict(card, weights="int8", quantization=record)
     card["provenance"] = (card.get("provenance", "")
                           + f"; convolutions quantised to int8 on {card['quantization']['date']}")
     text = json.dumps(card, sort_keys=True)

@@ -109,3 +109,81 @@ def test_bundled_quantised_models_come_from_the_float_files_kept_in_the_repo():
         assert float_card["weights"] in ("fp16", "fp32")
         assert {k: v for k, v in float_card.items() if k not in ("weights", "provenance")} == {
             k: v for k, v in card.items() if k not in ("weights", "provenance", "quantization")}
+
+
+@pytest.fixture(scope="module")
+def circular_pair(tiny_onnx, tmp_path_factory) -> tuple[Path, Path]:
+    """The tiny net with circular padding (float, fp16 weights) and its 8-bit file."""
+    import torch
+    from export.onnx_export import export_model, model_card
+    from trainer.unet import UNet
+    from .conftest import TINY_ONNX_UNET, tiny_config
+
+    cfg = tiny_config(**TINY_ONNX_UNET, padding="circular")
+    net = UNet(cfg.unet).eval()
+    net.load_state_dict(torch.load(tiny_onnx.with_suffix(".state")))
+    out = tmp_path_factory.mktemp("circular")
+    export_model(net, model_card(cfg, training_steps=0), out / "f.onnx", fp16_weights=True)
+    quantize(out / "f.onnx", out / "q.onnx", sets=2, seed=0)
+    return out / "f.onnx", out / "q.onnx"
+
+
+def _wrap_pads(model) -> int:
+    return sum(n.op_type == "Pad" and any(a.name == "mode" and a.s == b"wrap"
+                                          for a in n.attribute) for n in model.graph.node)
+
+
+def _run(model, x, t):
+    import onnxruntime as ort
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return sess.run(None, {"x": x, "t": t})[0]
+
+
+def test_wrap_pads_are_rewritten_exactly(circular_pair):
+    from export.wrap_pad import unroll_wrap_pads
+    f, q = circular_pair
+    model, rewritten = onnx.load(str(f)), onnx.load(str(f))
+    assert _wrap_pads(model) and unroll_wrap_pads(rewritten) == _wrap_pads(model)
+    assert _wrap_pads(rewritten) == 0
+    used = {name for node in rewritten.graph.node for name in node.input}
+    assert {i.name for i in rewritten.graph.initializer} <= used  # no dead pads constants
+    onnx.checker.check_model(rewritten)
+    rng = np.random.default_rng(0)
+    for k in (4, 5, 8, 13):  # odd sides, and k = 4's 1 x 1 coarsest level
+        x = rng.standard_normal((2, 2, k, k)).astype(np.float32)
+        t = np.array([3.0, 900.0], np.float32)
+        np.testing.assert_array_equal(_run(model, x, t), _run(rewritten, x, t))
+    # quantize() applied both to the 8-bit file: no wrap Pad left, and its card says so
+    assert _wrap_pads(onnx.load(str(q))) == 0
+    record = diffsampler_rt.load(q).card["quantization"]
+    assert record["wrap_pads"].endswith("all as Slice and Concat")
+    assert "quantization" not in diffsampler_rt.load(f).card
+
+
+def test_padding_after_quantising_gives_the_same_outputs():
+    # a Pad(wrap) -> QuantizeLinear -> DequantizeLinear chain, swapped: bit for bit the same
+    from onnx import TensorProto, helper, numpy_helper
+    from export.wrap_pad import quantize_before_wrap_pads
+    pads = numpy_helper.from_array(np.array([0, 0, 1, 1, 0, 0, 1, 1], np.int64), "pads")
+    scale = numpy_helper.from_array(np.array(0.02, np.float32), "scale")
+    zero = numpy_helper.from_array(np.array(128, np.uint8), "zero")
+    graph = helper.make_graph(
+        [helper.make_node("Pad", ["x", "pads"], ["p"], mode="wrap", name="pad"),
+         helper.make_node("QuantizeLinear", ["p", "scale", "zero"], ["q"], name="quant"),
+         helper.make_node("DequantizeLinear", ["q", "scale", "zero"], ["y"], name="deq")],
+        "g", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [None, 3, None, None])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [None, 3, None, None])],
+        [pads, scale, zero],
+        value_info=[helper.make_tensor_value_info("p", TensorProto.FLOAT, [None, 3, None, None])])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 19)])
+    swapped = onnx.load_from_string(model.SerializeToString())
+    assert quantize_before_wrap_pads(swapped) == 1
+    assert [n.op_type for n in swapped.graph.node] == ["QuantizeLinear", "Pad",
+                                                       "DequantizeLinear"]
+    onnx.checker.check_model(swapped, full_check=True)
+    import onnxruntime as ort
+    x = np.random.default_rng(1).standard_normal((2, 3, 5, 7)).astype(np.float32)
+    a, b = (ort.InferenceSession(m.SerializeToString(), providers=["CPUExecutionProvider"])
+            .run(None, {"x": x})[0] for m in (model, swapped))
+    assert a.shape == (2, 3, 7, 9)
+    np.testing.assert_array_equal(a, b)
