@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
+from diffsampler_rt.card import describe_devices  # noqa: E402
 from benchmarks.fidelity import TOL_MEAN, TOL_MIND  # noqa: E402
 from benchmarks.solver_sweep import compare, table  # noqa: E402
 from trainer.stats import min_distance, radial_spectrum, spectrum_mae  # noqa: E402
@@ -124,7 +125,8 @@ def main() -> None:
                      f"Distilled from `{d['teacher']}` ({d['config']['teacher_solver']} "
                      f"{d['config']['teacher_steps']} steps as teacher) to "
                      f"{card['default_solver']} {card['default_steps']} steps: "
-                     f"{effort(d)} on CPU (shared with other jobs)"
+                     f"{effort(d)} on {describe_devices(d.get('devices'))} (shared with "
+                     "other jobs)"
                      f"{quantised(card)}. Measured {dt.date.today().isoformat()} with `--sets {a.sets} "
                      f"--ref-sets {' '.join(map(str, a.ref_sets))}`.", ""]
             lines += to_teacher(name, 1024, a.teacher_sets)

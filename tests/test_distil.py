@@ -133,6 +133,7 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
     assert (m.card["default_solver"], m.card["default_steps"]) == ("ddim", 2)
     assert m.card["distillation"]["teacher"] == "tiny"
     assert m.card["distillation"]["steps"] == 3
+    assert m.card["distillation"]["devices"] == ["cpu"]  # where the student trained
     assert (m.card["train_seconds"], m.card["train_devices"]) == (60, ["cuda"])
     assert "min on CPU" in m.card["provenance"]  # the student's own run
     assert m.card["config"]["unet"]["attention_window"] == 2

@@ -278,7 +278,7 @@ class Distiller:
                         "teacher_sha1": self.teacher_sha1,
                         "teacher_training_steps": self.teacher_card["training_steps"],
                         "steps": self.step, "seconds": round(self.elapsed),
-                        "config": self.cfg.to_dict()}
+                        "devices": self.devices, "config": self.cfg.to_dict()}
         earlier = ""
         if self.cfg.init_from:
             distillation.update(earlier_steps=self.earlier["steps"],
