@@ -58,10 +58,9 @@ def unroll_wrap_pads(model: onnx.ModelProto) -> int:
     replaced = 0
     pad_inputs: set[str] = set()
     for node in graph.node:
-        mode = next((helper.get_attribute_value(a) for a in node.attribute
-                     if a.name == "mode"), b"constant")
         pads = (_constant_ints(model, node.input[1])
-                if node.op_type == "Pad" and mode == b"wrap" and len(node.input) < 4 else None)
+                if node.op_type == "Pad" and _mode(node) == b"wrap" and len(node.input) < 4
+                else None)
         if pads is None or min(pads) < 0:
             nodes.append(node)
             continue
@@ -109,8 +108,9 @@ def quantize_before_wrap_pads(model: onnx.ModelProto) -> int:
 
     Quantising is element-wise and padding in wrap mode only copies elements, so the two
     commute exactly; padded after quantising, the copy moves a quarter of the bytes. Only a
-    Pad whose output feeds that one QuantizeLinear alone is moved. Edits ``model`` in place
-    and returns how many pairs it swapped.
+    Pad whose output feeds that one QuantizeLinear alone is moved, and only where the
+    QuantizeLinear's scale and zero point are initializers. Edits ``model`` in place and
+    returns how many pairs it swapped.
     """
     graph = model.graph
     consumers: dict[str, list[onnx.NodeProto]] = {}
@@ -118,55 +118,38 @@ def quantize_before_wrap_pads(model: onnx.ModelProto) -> int:
         for name in node.input:
             consumers.setdefault(name, []).append(node)
     outputs = {o.name for o in graph.output}
-    swapped = 0
-    stale: set[str] = set()
+    initializers = {i.name for i in graph.initializer}
+    quant_of: dict[int, onnx.NodeProto] = {}  # id of a moved Pad -> its QuantizeLinear
     for pad in graph.node:
-        mode = next((helper.get_attribute_value(a) for a in pad.attribute
-                     if a.name == "mode"), b"constant")
         users = consumers.get(pad.output[0], [])
-        if (pad.op_type != "Pad" or mode != b"wrap" or len(users) != 1
-                or users[0].op_type != "QuantizeLinear" or pad.output[0] in outputs):
+        if (pad.op_type != "Pad" or _mode(pad) != b"wrap" or len(users) != 1
+                or users[0].op_type != "QuantizeLinear" or pad.output[0] in outputs
+                or not set(users[0].input[1:]) <= initializers):
             continue
-        quant = users[0]
-        x, q = pad.input[0], quant.output[0]
-        stale.add(pad.output[0])
-        unpadded = f"{q}_unpadded"  # x -> QuantizeLinear -> unpadded -> Pad -> q
-        quant.input[0], quant.output[0] = x, unpadded
-        pad.input[0], pad.output[0] = unpadded, q
-        swapped += 1
+        quant_of[id(pad)] = users[0]
+    moved = {id(q) for q in quant_of.values()}
+    stale = set()
+    nodes = []
+    for node in graph.node:
+        if id(node) in moved:
+            continue  # emitted at its Pad's place, below
+        quant = quant_of.get(id(node))
+        if quant is not None:  # x -> QuantizeLinear -> unpadded -> Pad -> q
+            stale.add(node.output[0])
+            unpadded = f"{quant.output[0]}_unpadded"
+            node.output[0], quant.output[0] = quant.output[0], unpadded
+            quant.input[0], node.input[0] = node.input[0], unpadded
+            nodes.append(quant)  # its other inputs are initializers: valid here
+        nodes.append(node)
+    del graph.node[:]
+    graph.node.extend(nodes)
     kept = [v for v in graph.value_info if v.name not in stale]  # typed as float
     del graph.value_info[:]
     graph.value_info.extend(kept)
-    # the Pads now follow their QuantizeLinear: restore topological order
-    order = _topological(graph)
-    del graph.node[:]
-    graph.node.extend(order)
-    return swapped
+    return len(quant_of)
 
 
-def _topological(graph: onnx.GraphProto) -> list[onnx.NodeProto]:
-    """The graph's nodes in an order where each comes after the producers of its inputs
-    (stable: nodes already in order keep it)."""
-    produced_by = {o: i for i, n in enumerate(graph.node) for o in n.output}
-    done: set[int] = set()
-    order: list[onnx.NodeProto] = []
-
-    def visit(i: int) -> None:
-        stack = [(i, False)]
-        while stack:
-            j, expanded = stack.pop()
-            if j in done:
-                continue
-            if expanded:
-                done.add(j)
-                order.append(graph.node[j])
-                continue
-            stack.append((j, True))
-            for name in reversed(graph.node[j].input):
-                p = produced_by.get(name)
-                if p is not None and p not in done:
-                    stack.append((p, False))
-
-    for i in range(len(graph.node)):
-        visit(i)
-    return order
+def _mode(node: onnx.NodeProto) -> bytes:
+    """A Pad node's mode attribute (ONNX's default: constant)."""
+    return next((helper.get_attribute_value(a) for a in node.attribute if a.name == "mode"),
+                b"constant")
