@@ -90,6 +90,7 @@ def _cmd_list(args: argparse.Namespace) -> None:
         distilled = card.get("distillation")
         origin = f", distilled from {distilled['teacher']}" if distilled else ""
         origin += ", 8-bit convolutions" if card.get("weights") == "int8" else ""
+        origin += ", toroidal sets" if card.get("padding") == "circular" else ""
         print(f"{name:<18} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
               f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
               f"({size:.1f} MiB{origin})")

@@ -41,6 +41,7 @@ def test_list_and_info(capsys):
     assert "rank1" in out and "sobol_owen" in out
     lines = {line.split()[0]: line for line in out.splitlines()}
     assert "8-bit convolutions" in lines["gbn_fast"] and "8-bit" not in lines["gbn"]
+    assert "toroidal" in lines["gbn_torus_fast"] and "toroidal" not in lines["gbn_fast"]
     assert main(["info", "rank1"]) == 0
     assert '"sampler": "rank1"' in capsys.readouterr().out
 
