@@ -24,25 +24,27 @@ from onnx import helper, numpy_helper
 _INT64_MAX = np.iinfo(np.int64).max
 
 
-def _constant_ints(model: onnx.ModelProto, name: str) -> list[int] | None:
-    """The int64 values of an initializer or Constant node output, else None."""
-    for init in model.graph.initializer:
-        if init.name == name:
-            return numpy_helper.to_array(init).astype(np.int64).tolist()
+def _constant_ints(model: onnx.ModelProto) -> dict[str, list[int]]:
+    """The values of the graph's initializers and Constant node outputs, as int lists."""
+    values = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
     for node in model.graph.node:
-        if node.op_type == "Constant" and node.output[0] == name:
-            for a in node.attribute:
-                if a.name == "value":
-                    return numpy_helper.to_array(a.t).astype(np.int64).tolist()
-    return None
+        if node.op_type == "Constant":
+            values.update({node.output[0]: numpy_helper.to_array(a.t)
+                           for a in node.attribute if a.name == "value"})
+    return {k: v.astype(np.int64).ravel().tolist() for k, v in values.items()
+            if np.issubdtype(v.dtype, np.integer)}
 
 
 def unroll_wrap_pads(model: onnx.ModelProto) -> int:
-    """Replace every ``Pad(mode="wrap")`` with constant pads by Slice and Concat nodes.
+    """Replace every ``Pad(mode="wrap")`` with constant pads of 0 or 1 by Slice and Concat.
 
     Edits ``model`` in place and returns how many Pad nodes it replaced. A wrap Pad whose
-    pads are computed at run time, or that has an ``axes`` input, is left as it is.
+    pads are computed at run time, that has an ``axes`` input, or that pads by more than
+    one entry is left as it is: a Slice of the last ``p`` entries equals the wrap only
+    while ``p`` is at most the side, and the sides are known only at run time (a 3x3
+    convolution pads by 1, which holds at every side).
     """
+    constants = _constant_ints(model)
     graph = model.graph
     consts: dict[tuple[int, ...], str] = {}
 
@@ -58,10 +60,10 @@ def unroll_wrap_pads(model: onnx.ModelProto) -> int:
     replaced = 0
     pad_inputs: set[str] = set()
     for node in graph.node:
-        pads = (_constant_ints(model, node.input[1])
+        pads = (constants.get(node.input[1])
                 if node.op_type == "Pad" and _mode(node) == b"wrap" and len(node.input) < 4
                 else None)
-        if pads is None or min(pads) < 0:
+        if pads is None or not set(pads) <= {0, 1}:
             nodes.append(node)
             continue
         rank = len(pads) // 2

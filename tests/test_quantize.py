@@ -187,3 +187,17 @@ def test_padding_after_quantising_gives_the_same_outputs():
             .run(None, {"x": x})[0] for m in (model, swapped))
     assert a.shape == (2, 3, 7, 9)
     np.testing.assert_array_equal(a, b)
+
+
+def test_wrap_pads_wider_than_one_are_left_alone():
+    # a Slice of the last p entries is the wrap only while p <= the side, unknown until run
+    from onnx import TensorProto, helper, numpy_helper
+    from export.wrap_pad import unroll_wrap_pads
+    pads = numpy_helper.from_array(np.array([0, 0, 2, 1, 0, 0, 2, 1], np.int64), "pads")
+    graph = helper.make_graph(
+        [helper.make_node("Pad", ["x", "pads"], ["y"], mode="wrap", name="pad")], "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [None, 1, None, None])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [None, 1, None, None])], [pads])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 19)])
+    assert unroll_wrap_pads(model) == 0
+    assert [n.op_type for n in model.graph.node] == ["Pad"]
