@@ -130,20 +130,67 @@ def spectrum_count(sampler: str, n: int, count: int, a) -> int:
     return max(count, a.spectrum_sets) if n == 1024 and tight and sampler not in SLOW else count
 
 
+def parse_ref_pool(spec: str) -> tuple[str, int, int, tuple[int, ...]]:
+    """``SAMPLER:N:COUNT:SEEDS`` (SEEDS ``a-b`` or ``a,b,...``) -> (sampler, n, count, seeds):
+    cached reference files of ``count`` sets each, one per seed, added to a size's pool."""
+    try:
+        sampler, n, count, seeds = spec.split(":")
+        if "-" in seeds:
+            lo, hi = (int(x) for x in seeds.split("-"))
+            seed_list = tuple(range(lo, hi + 1))
+        else:
+            seed_list = tuple(int(x) for x in seeds.split(","))
+        n, count = int(n), int(count)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--ref-pool {spec!r}: expected SAMPLER:N:COUNT:SEEDS, e.g. sot:1024:32:2-29") from None
+    if n < 1 or count < 1 or not seed_list or min(seed_list) < 2:
+        raise argparse.ArgumentTypeError(
+            f"--ref-pool {spec!r}: n and count must be positive and seeds at least 2 "
+            "(seed 1 is the report's own reference file)")
+    return sampler, n, count, seed_list
+
+
+def ref_pools(a) -> dict[tuple[str, int], list[tuple[int, tuple[int, ...]]]]:
+    """The extra reference files of ``--ref-pool``, by (sampler, n)."""
+    out: dict[tuple[str, int], list] = {}
+    for sampler, n, count, seeds in getattr(a, "ref_pool", None) or []:
+        out.setdefault((sampler, n), []).append((count, seeds))
+    return out
+
+
+def _seeds_text(seeds: tuple[int, ...]) -> str:
+    contiguous = seeds == tuple(range(seeds[0], seeds[0] + len(seeds)))
+    return f"{seeds[0]}-{seeds[-1]}" if contiguous and len(seeds) > 1 else ",".join(map(str, seeds))
+
+
 def reference(pool, sampler: str, n: int, a):
     """Reference batches A and B (one cached draw, seed 1) and the per-set statistics of
     their first ``count`` sets (after unwarping for non-uniform samplers), cached.
+
+    With ``--ref-pool`` files for this sampler and size, the seed-1 draw and those files are
+    pooled and split in halves: A and B are then each half of the pool, all of it used for
+    the spectrum and the statistics. The time per reference set stays the seed-1 draw's
+    (pooled files may have been drawn on another machine).
 
     Returns (count, spectrum count, A, B, seconds per reference set, stats A, stats B).
     """
     count = ref_count(sampler, n, a.sets, a.slow_sets, a.slow_4096)
     scount = spectrum_count(sampler, n, count, a)
     ref, per_set, _ = cached_sets(pool, sampler, n, 2 * scount, 1)
+    key = f"{sampler}_n{n}_c{2 * scount}_s1"
+    extra = ref_pools(a).get((sampler, n), [])
+    if extra:
+        ref = np.concatenate([ref] + [cached_sets(pool, sampler, n, c, s)[0]
+                                      for c, seeds in extra for s in seeds])
+        count = scount = len(ref) // 2
+        ref = ref[:2 * count]
+        key += "".join(f"+c{c}_s{_seeds_text(seeds)}" for c, seeds in extra)
     ref_a, ref_b = ref[:scount], ref[scount:]
     unwarp = UNWARP.get(sampler) or (lambda p: p)
     both = np.concatenate([ref_a[:count], ref_b[:count]])
-    st = cached_stats(pool, f"{sampler}_n{n}_c{2 * scount}_s1_first{count}"
-                      + ("_unwarped" if sampler in UNWARP else ""), unwarp(both))
+    st = cached_stats(pool, f"{key}_first{count}" + ("_unwarped" if sampler in UNWARP else ""),
+                      unwarp(both))
     return (count, scount, ref_a, ref_b, per_set, {k: v[:count] for k, v in st.items()},
             {k: v[count:] for k, v in st.items()})
 
@@ -154,7 +201,7 @@ def evaluate(pool, name: str, a) -> dict:
     sampler = card["sampler"]
     unwarp = UNWARP.get(sampler)
     res = {"name": name, "sampler": sampler, "card": card, "rows": {},
-           "model_sha256": model_hash(name), "settings": settings(a),
+           "model_sha256": model_hash(name), "settings": settings(a, sampler),
            "date": dt.date.today().isoformat()}
     for n in a.sizes:
         count, scount, ref_a, ref_b, ref_per_set, stats_a, stats_b = reference(pool, sampler, n, a)
@@ -243,9 +290,16 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
     return {**r, "rows": dict(sorted(rows.items()))}
 
 
-def settings(a) -> dict:
-    return {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
-            "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
+def settings(a, sampler_of: str | None = None) -> dict:
+    out = {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
+           "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
+    # only this model's sampler's pools: another model's run need not repeat them
+    pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
+             for (sampler, n), files in ref_pools(a).items() for c, seeds in files
+             if sampler_of is None or sampler == sampler_of]
+    if pools:
+        out["ref_pool"] = pools
+    return out
 
 
 def _jsonable(v):
@@ -411,7 +465,8 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
     how = "; ".join(
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
-        + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "") + f"` on {d}"
+        + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "")
+        + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", [])) + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
@@ -424,7 +479,10 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         "sets are generated (shown as *gen G*), which cuts the generated side's noise but "
         "not the floor. Slow reference samplers (the "
         "iterative optimisers) use fewer sets at sizes other than 1024; fast samplers with tight "
-        "spectrum targets use more sets at n = 1024 for the spectrum (the per-set statistics use the first ones).",
+        "spectrum targets use more sets at n = 1024 for the spectrum (the per-set statistics use the first ones). "
+        "With `--ref-pool SAMPLER:N:COUNT:SEEDS`, cached reference files of further seeds join "
+        "that size's seed-1 draw and A and B are each half of the pool (the reference's "
+        "time per set is still the seed-1 draw's, made on this machine).",
         "",
         f"MAE = mean absolute difference of the mean radial power spectra over the seed's 79 "
         f"bins. Other columns: relative difference of the mean (generated / reference - 1); "
@@ -543,6 +601,10 @@ def main() -> None:
     p.add_argument("--gen-sets", type=int, default=0,
                    help="generate at least this many sets per size (default: as many as the "
                         "reference side)")
+    p.add_argument("--ref-pool", type=parse_ref_pool, action="append", metavar="SAMPLER:N:COUNT:SEEDS",
+                   help="pool cached reference files of COUNT sets from these seeds (a-b or "
+                        "a,b,...) with the seed-1 draw at that size; A and B are its halves "
+                        "(repeatable; files missing from the cache are drawn)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")

@@ -43,6 +43,24 @@ def test_fidelity_report_runs(tmp_path):
     assert (tmp_path / "out" / "violins.png").stat().st_size > 1000
 
 
+def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path / "cache")}
+    cmd = [sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen", "--sizes", "64",
+           "--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
+    res = subprocess.run(cmd + ["--ref-pool", "sobol_owen:64:2:2-3"],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    # the seed-1 draw (2 x 3 sets) and two files of 2 sets: 10 sets, 5 a side
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "| 64 | 5 |" in md and "--ref-pool sobol_owen:64:2:2-3" in md
+    ref = tmp_path / "cache" / "reference"
+    assert (ref / "sobol_owen_n64_c2_s2.npz").exists() and (ref / "sobol_owen_n64_c2_s3.npz").exists()
+    for bad in ("sobol_owen:64:2", "sobol_owen:64:2:1-3", "sobol_owen:x:2:2"):
+        res = subprocess.run(cmd + ["--ref-pool", bad], capture_output=True, text=True,
+                             cwd=ROOT, env=env, timeout=600)
+        assert res.returncode == 2 and repr(bad) in res.stderr, res.stderr
+
+
 def test_post_processing_projections_reach_and_keep_the_structure():
     import numpy as np
     sys.path.insert(0, str(ROOT))
