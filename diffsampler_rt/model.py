@@ -168,7 +168,8 @@ class Model:
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
             So is a toroidal model's shift: a net with circular padding (``"padding":
             "circular"``) makes its sets on the torus; they are decoded modulo 1 and each
-            shifted by a uniform random vector, as a toroidal sampler's sets may be.
+            shifted by a uniform random vector, as a toroidal sampler's sets may be, and
+            its minimum spacing is kept on the torus (across the seam too).
 
         Returns
         -------
@@ -268,7 +269,7 @@ class Model:
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub)
             if spacing is not None:
-                pts = enforce_min_spacing(pts, spacing)
+                pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             # a non-uniform model's net makes the sets in the uniform square
             yield pts if density is None else warp(pts, density)
 

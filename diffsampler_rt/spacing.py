@@ -15,13 +15,16 @@ set-defaults --min-spacing`` writes it). Where that coefficient drifts with n (S
 distance shrinks from ~0.71 / sqrt(n) at n = 64 to ~0.57 / sqrt(n) at 4096), the card can
 give one per trained size instead, ``"min_spacing": {"n": [64, 256, 1024], "c": [...]}``:
 linear in log n between them, the end values beyond. Distances are Euclidean in the unit
-square (not toroidal), as in the fidelity statistics.
+square, as in the fidelity statistics; for a toroidal model (circular padding, sets on the
+torus) they are measured on the torus (``torus=True``), so pairs across the seam are kept
+apart too and a shifted or tiled set keeps its spacing.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import per_size
+from .grid import wrap
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
 #: pushes aim this much past r: pushing to exactly r converges slowly in dense sets (a push
@@ -43,23 +46,32 @@ def radius(card: dict, n: int) -> float | None:
     return None if spec is None else coefficient(spec, n) / np.sqrt(n)
 
 
-def close_pairs(points: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i, j), i < j, of the points of one set (m, 2) closer than r.
+def close_pairs(points: np.ndarray, r: float, *,
+                torus: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, j), i < j, of the points of one set (m, 2) closer than r (on the
+    unit torus with ``torus=True``).
 
     Points are binned into square buckets of side >= r, so each point is compared with the
     points of its own and the 8 neighbouring buckets only (O(m) for spread-out sets).
     """
     p = np.asarray(points, dtype=np.float64)
-    return _close_pairs(p, np.zeros(len(p), dtype=np.int64), r, np.arange(len(p)))
+    return _close_pairs(p, np.zeros(len(p), dtype=np.int64), r, np.arange(len(p)), torus)
 
 
-def _close_pairs(p: np.ndarray, set_id: np.ndarray, r: float,
-                 query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _offsets(d: np.ndarray, torus: bool) -> np.ndarray:
+    """Differences of points, the shortest way round the torus where ``torus``."""
+    return d - np.round(d) if torus else d
+
+
+def _close_pairs(p: np.ndarray, set_id: np.ndarray, r: float, query: np.ndarray,
+                 torus: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Close pairs with at least one point among the rows ``query``; ``set_id`` keeps the
     rows of different sets apart (each set gets its own buckets)."""
     g = max(1, int(np.floor(1.0 / r)))  # buckets per side, each at least r wide
     cx = np.clip((p[:, 0] * g).astype(np.int64), 0, g - 1)
     cy = np.clip((p[:, 1] * g).astype(np.int64), 0, g - 1)
+    if torus:  # neighbours wrap round within the set's own g x g buckets
+        return _close_pairs_torus(p, set_id, r, query, g, cx, cy)
     # bucket key with a one-bucket empty border, so neighbours never wrap across rows/sets
     side = g + 2
     key = (set_id * side + cy + 1) * side + cx + 1
@@ -89,7 +101,37 @@ def _close_pairs(p: np.ndarray, set_id: np.ndarray, r: float,
     return np.concatenate(pairs_i), np.concatenate(pairs_j)
 
 
-def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32) -> np.ndarray:
+def _close_pairs_torus(p: np.ndarray, set_id: np.ndarray, r: float, query: np.ndarray,
+                       g: int, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    key = (set_id * g + cy) * g + cx
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    is_query = np.zeros(len(p), dtype=bool)
+    is_query[query] = True
+    qx, qy, qs = cx[query], cy[query], set_id[query]
+    pairs_i, pairs_j = [], []
+    # with fewer than 3 buckets a side, two of the 3 x 3 neighbours are one bucket: once each
+    shifts = sorted({(dy % g, dx % g) for dy in (-1, 0, 1) for dx in (-1, 0, 1)})
+    for dy, dx in shifts:
+        target = (qs * g + (qy + dy) % g) * g + (qx + dx) % g
+        lo = np.searchsorted(skey, target, side="left")
+        count = np.searchsorted(skey, target, side="right") - lo
+        if not count.any():
+            continue
+        i = np.repeat(query, count)
+        j = order[np.repeat(lo - np.cumsum(count) + count, count) + np.arange(count.sum())]
+        keep = (j > i) | ~is_query[j]
+        i, j = i[keep], j[keep]
+        close = np.sum(_offsets(p[j] - p[i], True) ** 2, axis=1) < r * r
+        pairs_i.append(np.minimum(i[close], j[close]))
+        pairs_j.append(np.maximum(i[close], j[close]))
+    if not pairs_i:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    return np.concatenate(pairs_i), np.concatenate(pairs_j)
+
+
+def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32,
+                        torus: bool = False) -> np.ndarray:
     """Push apart the pairs of each set (..., n, 2) closer than r.
 
     Each close pair moves apart along the line joining its points, both points by half of
@@ -98,7 +140,8 @@ def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32) -> np
     until no pair is closer than r or after ``rounds`` rounds (Poisson disk sets at their
     sampler's radius need <= 10; only sets far denser than r allows keep a close pair).
     A point is returned bit for bit unless it was in a close pair (a push can bring a
-    neighbour into a new close pair; it then moves too).
+    neighbour into a new close pair; it then moves too). With ``torus=True`` distances and
+    pushes go the shortest way round the unit torus and pushed points wrap modulo 1.
 
     Examples
     --------
@@ -118,10 +161,10 @@ def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32) -> np
     set_id = np.arange(len(flat)) // max(pts.shape[-2], 1)
     query = np.arange(len(flat))  # then only the points the last round moved
     for _ in range(rounds):
-        i, j = _close_pairs(flat, set_id, r, query)
+        i, j = _close_pairs(flat, set_id, r, query, torus)
         if len(i) == 0:
             break
-        d = flat[j] - flat[i]
+        d = _offsets(flat[j] - flat[i], torus)
         dist = np.linalg.norm(d, axis=1)
         # coincident points: a fixed direction keeps the result deterministic
         unit = np.where(dist[:, None] > 0, d / np.where(dist > 0, dist, 1.0)[:, None],
@@ -130,7 +173,7 @@ def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32) -> np
         move = np.zeros_like(flat)
         np.add.at(move, i, -push)
         np.add.at(move, j, push)
-        new = np.clip(flat + move, 0.0, _BELOW_ONE)
+        new = wrap(flat + move) if torus else np.clip(flat + move, 0.0, _BELOW_ONE)
         query = np.flatnonzero(np.any(new != flat, axis=1))
         flat = new
         if len(query) == 0:

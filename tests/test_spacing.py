@@ -170,6 +170,57 @@ def test_per_size_spacing_table(tiny_onnx, tmp_path):
                                   enforce_min_spacing(plain, coefficient(table, 256) / 16))
 
 
+def brute_pairs_torus(p: np.ndarray, r: float) -> set:
+    d = p[:, None] - p[None]
+    d = np.linalg.norm(d - np.round(d), axis=-1)
+    i, j = np.nonzero(np.triu(d < r, 1))
+    return set(zip(i.tolist(), j.tolist()))
+
+
+@pytest.mark.parametrize("m, scale", [(1, 0.5), (7, 0.5), (7, 1.5), (20, 2.5), (300, 0.6),
+                                      (2000, 1.5)])
+def test_close_pairs_on_the_torus_match_brute_force(m, scale):
+    # scale / sqrt(m) from 0.03 to 0.57: 1, 2, 3 and many buckets a side
+    p = np.random.default_rng(m).random((m, 2))
+    r = scale / np.sqrt(m)
+    i, j = close_pairs(p, r, torus=True)
+    assert np.all(i < j)
+    assert set(zip(i.tolist(), j.tolist())) == brute_pairs_torus(p, r)
+    assert len(i) == len(set(zip(i.tolist(), j.tolist())))  # each pair once
+
+
+def test_spacing_on_the_torus_pushes_pairs_across_the_seam():
+    pts = np.array([[0.001, 0.5], [0.999, 0.5], [0.5, 0.5]])
+    # 0.002 apart on the torus, 0.998 in the square: only the torus pushes them
+    np.testing.assert_array_equal(enforce_min_spacing(pts, 0.1), pts)
+    out = enforce_min_spacing(pts, 0.1, torus=True)
+    assert min_distance(out, toroidal=True) >= 0.1
+    assert out[0, 0] < 0.2 and out[1, 0] > 0.8  # apart round the seam, not across the square
+    assert out[2].tolist() == [0.5, 0.5]
+
+
+@pytest.mark.parametrize("n", [64, 1024])
+def test_sets_get_the_spacing_on_the_torus(n):
+    pts = np.random.default_rng(n).random((3, n, 2))
+    r = 0.5 / np.sqrt(n)
+    out = enforce_min_spacing(pts, r, torus=True)
+    assert np.all((out >= 0) & (out < 1)) and np.all(np.isfinite(out))
+    assert np.all(min_distance(out, toroidal=True) >= r * (1 - 1e-9))
+    for s in range(3):  # points far from every close pair keep their bits
+        i, j = close_pairs(pts[s], r, torus=True)
+        close = pts[s][np.unique(np.concatenate([i, j]))]
+        d = pts[s][:, None] - close[None]
+        far = np.linalg.norm(d - np.round(d), axis=-1).min(1) > 3 * r
+        np.testing.assert_array_equal(out[s][far], pts[s][far])
+
+
+def test_toroidal_models_keep_their_spacing_on_the_torus():
+    m = diffsampler_rt.load("poisson_disk_torus_fast")
+    assert m.card["padding"] == "circular"
+    pts = m.generate(1024, 4, seed=0)  # with spacing in the square, 3 of these 4 were closer
+    assert np.all(min_distance(pts, toroidal=True) >= radius(m.card, 1024))
+
+
 def test_docstring_examples():
     assert doctest.testmod(spacing).failed == 0
 
