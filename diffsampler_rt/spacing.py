@@ -71,58 +71,38 @@ def _close_pairs(p: np.ndarray, set_id: np.ndarray, r: float, query: np.ndarray,
     cx = np.clip((p[:, 0] * g).astype(np.int64), 0, g - 1)
     cy = np.clip((p[:, 1] * g).astype(np.int64), 0, g - 1)
     if torus:  # neighbours wrap round within the set's own g x g buckets
-        return _close_pairs_torus(p, set_id, r, query, g, cx, cy)
-    # bucket key with a one-bucket empty border, so neighbours never wrap across rows/sets
-    side = g + 2
-    key = (set_id * side + cy + 1) * side + cx + 1
+        key = (set_id * g + cy) * g + cx
+        qx, qy, qs = cx[query], cy[query], set_id[query]
+        # with fewer than 3 buckets a side, two of the 3 x 3 neighbours are one bucket: once each
+        shifts = sorted({(dy % g, dx % g) for dy in (-1, 0, 1) for dx in (-1, 0, 1)})
+
+        def neighbour(dy: int, dx: int) -> np.ndarray:
+            return (qs * g + (qy + dy) % g) * g + (qx + dx) % g
+    else:  # bucket key with a one-bucket empty border: neighbours never wrap across rows/sets
+        side = g + 2
+        key = (set_id * side + cy + 1) * side + cx + 1
+        shifts = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+
+        def neighbour(dy: int, dx: int) -> np.ndarray:
+            return key[query] + dy * side + dx
     order = np.argsort(key, kind="stable")
     skey = key[order]
     is_query = np.zeros(len(p), dtype=bool)
     is_query[query] = True
     pairs_i, pairs_j = [], []
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            target = key[query] + dy * side + dx
-            lo = np.searchsorted(skey, target, side="left")
-            count = np.searchsorted(skey, target, side="right") - lo
-            if not count.any():
-                continue
-            # every (query point, bucket member) pair, without a Python loop over points
-            i = np.repeat(query, count)
-            j = order[np.repeat(lo - np.cumsum(count) + count, count) + np.arange(count.sum())]
-            # each pair once: a pair of two query points is kept from its smaller index
-            keep = (j > i) | ~is_query[j]
-            i, j = i[keep], j[keep]
-            close = np.sum((p[j] - p[i]) ** 2, axis=1) < r * r
-            pairs_i.append(np.minimum(i[close], j[close]))
-            pairs_j.append(np.maximum(i[close], j[close]))
-    if not pairs_i:
-        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    return np.concatenate(pairs_i), np.concatenate(pairs_j)
-
-
-def _close_pairs_torus(p: np.ndarray, set_id: np.ndarray, r: float, query: np.ndarray,
-                       g: int, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    key = (set_id * g + cy) * g + cx
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    is_query = np.zeros(len(p), dtype=bool)
-    is_query[query] = True
-    qx, qy, qs = cx[query], cy[query], set_id[query]
-    pairs_i, pairs_j = [], []
-    # with fewer than 3 buckets a side, two of the 3 x 3 neighbours are one bucket: once each
-    shifts = sorted({(dy % g, dx % g) for dy in (-1, 0, 1) for dx in (-1, 0, 1)})
     for dy, dx in shifts:
-        target = (qs * g + (qy + dy) % g) * g + (qx + dx) % g
+        target = neighbour(dy, dx)
         lo = np.searchsorted(skey, target, side="left")
         count = np.searchsorted(skey, target, side="right") - lo
         if not count.any():
             continue
+        # every (query point, bucket member) pair, without a Python loop over points
         i = np.repeat(query, count)
         j = order[np.repeat(lo - np.cumsum(count) + count, count) + np.arange(count.sum())]
+        # each pair once: a pair of two query points is kept from its smaller index
         keep = (j > i) | ~is_query[j]
         i, j = i[keep], j[keep]
-        close = np.sum(_offsets(p[j] - p[i], True) ** 2, axis=1) < r * r
+        close = np.sum(_offsets(p[j] - p[i], torus) ** 2, axis=1) < r * r
         pairs_i.append(np.minimum(i[close], j[close]))
         pairs_j.append(np.maximum(i[close], j[close]))
     if not pairs_i:
