@@ -154,6 +154,7 @@ def parse_ref_pool(spec: str) -> tuple[str, int, int, tuple[int, ...]]:
 def ref_pools(a) -> dict[tuple[str, int], list[tuple[int, tuple[int, ...]]]]:
     """The extra reference files of ``--ref-pool``, by (sampler, n)."""
     out: dict[tuple[str, int], list] = {}
+    # solver_sweep.py passes its own namespace of reference sizes, without --ref-pool
     for sampler, n, count, seeds in getattr(a, "ref_pool", None) or []:
         out.setdefault((sampler, n), []).append((count, seeds))
     return out
@@ -290,13 +291,13 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
     return {**r, "rows": dict(sorted(rows.items()))}
 
 
-def settings(a, sampler_of: str | None = None) -> dict:
+def settings(a, sampler: str) -> dict:
+    """The run's options as kept with a result of a model of ``sampler``."""
     out = {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
            "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
-    # only this model's sampler's pools: another model's run need not repeat them
+    # only this sampler's pools: another model's run need not repeat them
     pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
-             for (sampler, n), files in ref_pools(a).items() for c, seeds in files
-             if sampler_of is None or sampler == sampler_of]
+             for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
     if pools:
         out["ref_pool"] = pools
     return out
