@@ -162,7 +162,10 @@ class Model:
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
-            every other point kept; :mod:`diffsampler_rt.spacing`), in that order.
+            every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
+            that where a structure is imposed the spacing comes before it, so that the
+            structure holds exactly (ldbn: the n-rooks projection then puts every point
+            back in a strip of its own cell, which keeps most of the spacing).
             ``False`` returns the network's sets as decoded.
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
@@ -264,11 +267,16 @@ class Model:
                          toroidal=toroidal)
             if toroidal:  # after the solver's draws, like a lattice's shift
                 pts = wrap(pts + np.stack([g.random(2) for g in sub])[:, None, :])
+            # an imposed structure must hold exactly, so the spacing goes before it (the
+            # structure puts every point back in a strip of its own cell, a small move that
+            # keeps most of the spacing)
+            if spacing is not None and imposed:
+                pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub)
-            if spacing is not None:
+            if spacing is not None and not imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             # a non-uniform model's net makes the sets in the uniform square
             yield pts if density is None else warp(pts, density)

@@ -243,8 +243,15 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
     cfg = tiny_config()
     fresh = tmp_path / "fresh.json"
     fresh.write_text(json.dumps(cfg.to_dict()))
-    assert main(["spacing", str(fresh)]) == 2
-    assert "trains on fresh sets (no pool)" in capsys.readouterr().err
+    # fresh sets: as many drawn from the sampler with the config's seed, k = 4 first
+    assert main(["spacing", str(fresh), "--fresh-sets", "12", "--percentile", "50"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    from trainer.samplers import sample
+    rng = np.random.default_rng(cfg.seed)
+    want = [spacing_coefficient(sample("sobol_owen", k * k, count=12, seed=rng), 50)
+            for k in (4, 8)]
+    assert out[0].startswith("tiny: k=4 (12 sets) spacing coefficient")
+    assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
     pooled = tmp_path / "pooled.json"
     pooled.write_text(json.dumps(replace(cfg, data=replace(cfg.data, pool_sizes=(20, 10))).to_dict()))
     assert main(["spacing", str(pooled), "--percentile", "50"]) == 0

@@ -134,6 +134,28 @@ def test_n_rooks_card_min_side_and_guidance(tiny_onnx, tmp_path):
     assert not {"structure", "structure_min_side", "structure_guidance"} & set(card)
 
 
+def test_spacing_goes_before_an_imposed_structure(tiny_onnx, tmp_path):
+    """The structure must hold exactly, so a card's spacing is restored before it (after it,
+    the pushes would take points out of their strips); where none is imposed, after."""
+    from diffsampler_rt.spacing import enforce_min_spacing
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (64, 256)}
+    set_defaults(path, structure="n_rooks", structure_min_side=16, min_spacing=0.7)
+    m = diffsampler_rt.Model(path)
+    both = m.generate(256, 3, seed=6)
+    # a push may cross a cell border; the structure puts the point back in a strip of its
+    # own cell (so the checked impose_n_rooks would refuse the pushed set)
+    spaced = enforce_min_spacing(plain[256], 0.7 / 16)
+    np.testing.assert_array_equal(both, structure._impose(spaced, 16, "n_rooks"))
+    assert stratified_projections(both).all()
+    cells = np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2)
+    assert np.array_equal(np.floor(both * 16), np.broadcast_to(cells, both.shape))
+    np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: spacing only
+                                  enforce_min_spacing(plain[64], 0.7 / 8))
+
+
 @pytest.mark.parametrize("extra, message", [
     ({"structure_min_side": 16}, "'structure_min_side' needs a structure"),
     ({"structure": "n_rooks", "structure_min_side": 0}, "must be an integer >= 1, got 0"),

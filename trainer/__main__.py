@@ -65,16 +65,22 @@ def _spacing(args: argparse.Namespace) -> None:
     from .config import TrainConfig
     from .data import Batches
     from .stats import spacing_coefficient
+    from .samplers import sample
     cfg = TrainConfig.load(args.config)
-    if not any(cfg.data.pool_sizes):
-        raise ValueError(f"{args.config} trains on fresh sets (no pool); nothing to measure")
-    pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(), workers=args.workers).pools
-    table = []
-    for k, pool in sorted(pools.items()):
+    if any(cfg.data.pool_sizes):
+        pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(),
+                        workers=args.workers).pools
         # the pool's own sets only: its shifted copies are translated on the torus, which
         # changes Euclidean distances across the border
-        grid = np.asarray(pool[::cfg.data.shifts], dtype=np.float64)
-        pts = decode(grid, stratified=cfg.data.embedding == "stratified")
+        sets = {k: decode(np.asarray(pool[::cfg.data.shifts], dtype=np.float64),
+                          stratified=cfg.data.embedding == "stratified")
+                for k, pool in pools.items()}
+    else:  # trained on fresh sets: measure as many drawn from the sampler (config's seed)
+        rng = np.random.default_rng(cfg.seed)
+        sets = {k: sample(cfg.data.sampler, k * k, count=args.fresh_sets, seed=rng,
+                          workers=args.workers) for k in sorted(cfg.data.sizes)}
+    table = []
+    for k, pts in sorted(sets.items()):
         c = spacing_coefficient(pts, args.percentile)
         table.append(f"{k * k}:{c:.4f}")
         print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient {c:.4f} "
@@ -119,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="share of the sets whose smallest distance is below the radius")
     c.add_argument("--workers", type=int, default=1,
                    help="processes for the slow samplers, if the pools are not cached")
+    c.add_argument("--fresh-sets", type=int, default=256,
+                   help="sets drawn per grid size for a config trained on fresh sets")
 
     s = sub.add_parser("sample", help="draw point sets from a reference sampler")
     s.add_argument("name")
