@@ -21,6 +21,7 @@ fidelity.json and fidelity/<model>.png.
 
     python benchmarks/fidelity.py [--models gbn sot] [--sets 128] [--workers 2]
     python benchmarks/fidelity.py --report-only   # rebuild the report from kept results
+    python benchmarks/fidelity.py --models sot_fast --stored-reference   # the kept references
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ from diffsampler_rt.card import describe_devices  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
                                seed_curve)
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
-from trainer.samplers import SLOW  # noqa: E402
+from trainer.samplers import SLOW, sample  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.density import OLD_FLOOR  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
@@ -196,6 +197,24 @@ def reference(pool, sampler: str, n: int, a):
             {k: v[count:] for k, v in st.items()})
 
 
+def stored_reference(out: Path, name: str, n: int) -> dict:
+    """The kept row of ``name`` at n, whose reference side (``--stored-reference``) stands in
+    for batches A and B: their mean spectrum, the per-set statistics of A, every floor, the
+    counts and the time per reference set. Records under ``"reference"`` the run it is from."""
+    path = out / "fidelity" / f"{name}.json"
+    old = json.loads(path.read_text()) if path.exists() else {"rows": {}}
+    row = old["rows"].get(str(n))
+    if row is None:
+        raise SystemExit(f"error: {name} has no kept row at n = {n} to take the reference "
+                         "figures from; measure it without --stored-reference")
+    row["spec_ref"] = np.asarray(row["spec_ref"])
+    # the run that drew the references: a row may itself be kept (--merge) or stored
+    row["reference"] = (row.get("reference") or row.get("measured")
+                        or {"date": old["date"], "settings": old["settings"]})
+    row["reference"] = {k: row["reference"][k] for k in ("date", "settings")}
+    return row
+
+
 def evaluate(pool, name: str, a) -> dict:
     model = diffsampler_rt.load(name)
     card = model.card
@@ -205,6 +224,11 @@ def evaluate(pool, name: str, a) -> dict:
            "model_sha256": model_hash(name), "settings": settings(a, sampler),
            "date": dt.date.today().isoformat()}
     for n in a.sizes:
+        if getattr(a, "stored_reference", False):  # solver_sweep passes its own namespace
+            res["rows"][n] = against_stored(pool, model, n, a, stored_reference(a.out, name, n),
+                                            example=n == a.sizes[0])
+            _print_row(name, n, res["rows"][n])
+            continue
         count, scount, ref_a, ref_b, ref_per_set, stats_a, stats_b = reference(pool, sampler, n, a)
         # generation is cheap: more generated than reference sets (--gen-sets) cuts the
         # generated side's noise, the floor (B vs A) stays the reference's
@@ -246,9 +270,57 @@ def evaluate(pool, name: str, a) -> dict:
         if unwarp:
             row["chi2"] = (float(chi2_density(gu).mean()), float(chi2_density(ru_a).mean()))
         res["rows"][n] = row
-        print(f"{name} n={n}: MAE {row['mae']:.4f} (floor {row['floor']:.4f}); "
-              + ", ".join(f"{k} {100 * row[k]['rel']:+.1f}%" for k in STATS), flush=True)
+        _print_row(name, n, row)
     return res
+
+
+def _print_row(name: str, n: int, row: dict) -> None:
+    print(f"{name} n={n}: MAE {row['mae']:.4f} (floor {row['floor']:.4f}); "
+          + ", ".join(f"{k} {100 * row[k]['rel']:+.1f}%" for k in STATS), flush=True)
+
+
+def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
+    """A row of ``model`` at n measured now against the reference side of the kept row
+    ``kept`` (:func:`stored_reference`): the same counts, the generated sets made now.
+    ``example``: draw one reference set for the plot (the kept row has none)."""
+    sampler, unwarp = model.card["sampler"], UNWARP.get(model.card["sampler"])
+    count, scount = kept["count"], kept["spectrum_count"]
+    gcount = max(scount, a.gen_sets)
+    t = time.perf_counter()
+    gen = model.generate(n, gcount, seed=a.seed)
+    gen_per_set = (time.perf_counter() - t) / gcount
+    gu = unwarp(gen) if unwarp else gen
+    keep = max(count, a.gen_sets)
+    gstats = set_stats(pool, gu[:keep])
+    sg = radial_spectrum(gu)[1]
+    gen = gen[:keep]
+    row = {"count": count, "spectrum_count": scount, "gen_count": len(gen),
+           "gen_ms": 1000 * gen_per_set, "ref_ms": kept["ref_ms"],
+           "mae": spectrum_mae(sg, kept["spec_ref"]), "floor": kept["floor"],
+           "spec_gen": sg, "spec_ref": kept["spec_ref"], "reference": kept["reference"]}
+    if example:
+        row["example_gen"] = gen[0]
+        row["example_ref"] = sample(sampler, n, count=1, seed=a.seed)[0]
+    for k in STATS:
+        ref = kept[k]["ref"]
+        row[k] = {"gen": float(gstats[k].mean()), "ref": ref,
+                  "rel": float(gstats[k].mean() / ref - 1), "floor": kept[k]["floor"],
+                  "gen_sets": [float(f"{v:.6g}") for v in gstats[k]],
+                  "ref_sets": kept[k]["ref_sets"]}
+    if "mae_seed_ref" in kept:
+        row["mae_seed_gen"] = spectrum_mae(sg, seed_curve(sampler))
+        row["mae_seed_ref"] = kept["mae_seed_ref"]
+    # structure and density checks: the generated side now, the reference side as kept
+    if "empty" in kept:
+        row["empty"] = (float(empty_elementary_fraction(gen).mean()), *kept["empty"][1:])
+    if "strat" in kept:
+        row["strat"] = (float(stratified_projections(gen).mean()), kept["strat"][1])
+    if "lattice" in kept:
+        g = GENERATORS[sampler](n)
+        row["lattice"] = (float(np.mean(fit_rank1_lattice(gen)[0] == g)), kept["lattice"][1])
+    if "chi2" in kept:
+        row["chi2"] = (float(chi2_density(gu).mean()), kept["chi2"][1])
+    return row
 
 
 #: relative agreement of the kept per-set minimum distances that counts as the same sets
@@ -295,6 +367,8 @@ def settings(a, sampler: str) -> dict:
     """The run's options as kept with a result of a model of ``sampler``."""
     out = {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
            "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
+    if getattr(a, "stored_reference", False):
+        out["stored_reference"] = True
     # only this sampler's pools: another model's run need not repeat them
     pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
              for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
@@ -429,6 +503,22 @@ def _taken_over(r: dict) -> list[str]:
     return ["", text + " (`--merge`)."]
 
 
+def _stored_note(r: dict) -> list[str]:
+    """A note on rows measured against stored reference figures (``--stored-reference``)."""
+    by_run: dict[str, list[int]] = {}
+    for n, row in r["rows"].items():
+        if "reference" in row:
+            by_run.setdefault(row["reference"]["date"], []).append(n)
+    if not by_run:
+        return []
+    runs = "; ".join(f"n = {', '.join(map(str, ns))} from the run of {d}"
+                     for d, ns in sorted(by_run.items()))
+    return ["", f"Reference side stored (`--stored-reference`): {runs}. The generated sets "
+            "were made and measured anew against that run's kept reference figures (mean "
+            "spectrum, per-set statistics of batch A, floors, time per set); the example "
+            "reference set in the plot is a fresh draw."]
+
+
 def _structure_text(c: dict) -> str:
     if c.get("structure") == "rank1_lattice":
         sides = c.get("structure_sides")
@@ -449,7 +539,8 @@ def _structure_text(c: dict) -> str:
 def _sliced_text(spec: dict) -> str:
     its = (", ".join(f"{k} at n = {n}" for n, k in zip(spec["n"], spec["iterations"]))
            + " (log-linear, rounded)" if "n" in spec else str(spec["iterations"]))
-    return f"sliced-OT iterations of {spec['directions']} directions: {its}"
+    step = f", each move scaled by {spec['step']:g}" if spec.get("step", 1) != 1 else ""
+    return f"sliced-OT iterations of {spec['directions']} directions: {its}{step}"
 
 
 def _spacing_text(spec: float | dict) -> str:
@@ -461,13 +552,15 @@ def _spacing_text(spec: float | dict) -> str:
 
 def report(results: list[dict], missing: list[str], out: Path) -> None:
     runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results}
-                  | {(row["measured"]["date"], json.dumps(row["measured"]["settings"], sort_keys=True))
-                     for r in results for row in r["rows"].values() if "measured" in row})
+                  | {(row[k]["date"], json.dumps(row[k]["settings"], sort_keys=True))
+                     for r in results for row in r["rows"].values()
+                     for k in ("measured", "reference") if k in row})
     how = "; ".join(
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
         + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "")
-        + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", [])) + f"` on {d}"
+        + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", []))
+        + (" --stored-reference" if st.get("stored_reference") else "") + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
@@ -483,7 +576,10 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         "spectrum targets use more sets at n = 1024 for the spectrum (the per-set statistics use the first ones). "
         "With `--ref-pool SAMPLER:N:COUNT:SEEDS`, cached reference files of further seeds join "
         "that size's seed-1 draw and A and B are each half of the pool (the reference's "
-        "time per set is still the seed-1 draw's, made on this machine).",
+        "time per set is still the seed-1 draw's, made on this machine). With "
+        "`--stored-reference` (said in the model's section) the reference side of a row is "
+        "the one kept from the model's earlier run, when the reference sets were not at hand "
+        "for a re-measurement after a change of the model's card.",
         "",
         f"MAE = mean absolute difference of the mean radial power spectra over the seed's 79 "
         f"bins. Other columns: relative difference of the mean (generated / reference - 1); "
@@ -545,7 +641,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
                          + " | ".join(_fmt_rel(row[k], TOL_MIND if k == "min_distance" else TOL_MEAN)
                                       for k in STATS)
                          + f" | {extra} | {row['gen_ms']:.0f} | {row['ref_ms']:.0f} |")
-        lines += _taken_over(r)
+        lines += _taken_over(r) + _stored_note(r)
         lines += ["", f"![{r['name']}](fidelity/{r['name']}.png)"]
     lines.append("")
     (out / "fidelity.md").write_text("\n".join(lines))
@@ -613,6 +709,10 @@ def main() -> None:
                    help="keep the model's earlier rows at the sizes not given, where the "
                         "current file reproduces their sets (e.g. after a re-export that "
                         "only changes big grids)")
+    p.add_argument("--stored-reference", action="store_true",
+                   help="measure the generated sets against the reference figures kept "
+                        "from the model's last run (its fidelity/<model>.json), when the "
+                        "reference sets are not at hand (e.g. after a card change)")
     p.add_argument("--report-only", action="store_true",
                    help="only rebuild fidelity.md from the kept per-model results")
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",

@@ -275,7 +275,8 @@ class Model:
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if sliced:
-                pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub)
+                pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
+                             step=self.card["sliced_ot"].get("step", 1.0))
             if spacing is not None and not imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             # a non-uniform model's net makes the sets in the uniform square

@@ -3,7 +3,7 @@
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...]
-[--sliced-ot K|N:K,...|none [--sliced-ot-directions D]] [--min-spacing C|N:C,...|none]``:
+[--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]``:
 change the sampling defaults in an exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
@@ -59,17 +59,24 @@ def set_defaults_main(argv: list[str]) -> int:
                         "size (linear in log n between them, rounded); none: remove")
     p.add_argument("--sliced-ot-directions", type=int, metavar="D",
                    help="directions per sliced-OT iteration (default 64; with --sliced-ot)")
+    p.add_argument("--sliced-ot-step", type=float, metavar="S",
+                   help="scale every sliced-OT move by S, 0 < S <= 2 (default 1: the "
+                        "sampler's own update; with --sliced-ot)")
     args = p.parse_args(argv)
     sliced = args.sliced_ot
-    if args.sliced_ot_directions is not None and (sliced is None or sliced == "none"):
-        print("error: --sliced-ot-directions needs --sliced-ot K or N:K,...", file=sys.stderr)
-        return 2
+    for flag, value in (("directions", args.sliced_ot_directions),
+                        ("step", args.sliced_ot_step)):
+        if value is not None and (sliced is None or sliced == "none"):
+            print(f"error: --sliced-ot-{flag} needs --sliced-ot K or N:K,...", file=sys.stderr)
+            return 2
     directions = 64 if args.sliced_ot_directions is None else args.sliced_ot_directions
     if sliced is not None and sliced != "none":
         try:
             table = parse_table(sliced, "iterations", _whole)
             sliced = {"directions": directions,
                       **(table if isinstance(table, dict) else {"iterations": table})}
+            if args.sliced_ot_step is not None:
+                sliced["step"] = args.sliced_ot_step
         except ValueError:
             print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
                   f"none, got {sliced!r}", file=sys.stderr)
@@ -127,9 +134,11 @@ def sliced_text(spec: dict | None) -> str:
     if not spec:
         return "none"
     if "n" in spec:
-        return (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
+        text = (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
                 + " / ".join(map(str, spec["n"])) + f" x {spec['directions']} directions")
-    return f"{spec['iterations']} iterations x {spec['directions']} directions"
+    else:
+        text = f"{spec['iterations']} iterations x {spec['directions']} directions"
+    return text + (f", step {spec['step']:g}" if "step" in spec else "")
 
 
 def parse_table(text: str, key: str, value=float):

@@ -61,6 +61,35 @@ def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
         assert res.returncode == 2 and repr(bad) in res.stderr, res.stderr
 
 
+def test_fidelity_against_stored_reference_figures(tmp_path):
+    import shutil
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path / "cache")}
+    cmd = [sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen", "--sizes", "64",
+           "--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
+    before = json.loads(kept.read_text())["rows"]["64"]
+    shutil.rmtree(tmp_path / "cache")  # the reference sets are not at hand
+    res = subprocess.run(cmd + ["--stored-reference"], capture_output=True, text=True, cwd=ROOT,
+                         env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert not (tmp_path / "cache" / "reference").exists()  # nothing drawn for A and B
+    after = json.loads(kept.read_text())["rows"]["64"]
+    # the same model and seed against the kept reference side: the same figures
+    for key in ("mae", "floor", "count", "empty"):
+        assert after[key] == before[key], key
+    for stat in ("gauss_mse", "min_distance"):
+        assert after[stat] == before[stat]
+    assert after["reference"]["settings"]["sets"] == 3
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "Reference side stored (`--stored-reference`): n = 64 from the run of" in md
+    assert " --stored-reference` on " in md
+    res = subprocess.run(cmd[:5] + ["256"] + cmd[6:] + ["--stored-reference"],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode != 0 and "sobol_owen has no kept row at n = 256" in res.stderr
+
+
 def test_post_processing_projections_reach_and_keep_the_structure():
     import numpy as np
     sys.path.insert(0, str(ROOT))

@@ -83,6 +83,9 @@ def test_iterations_per_size():
     ({"directions": 64, "iterations": True}, "got True"),
     ({"directions": 64, "n": [1024, 256], "iterations": [1, 2]}, "strictly increasing"),
     ({"directions": 64, "n": [256], "iterations": [1, 2]}, "same length"),
+    ({"directions": 64, "iterations": 4, "step": 0}, "step must be a number in (0, 2], got 0"),
+    ({"directions": 64, "iterations": 4, "step": 2.5}, "got 2.5"),
+    ({"directions": 64, "iterations": 4, "step": True}, "got True"),
 ])
 def test_card_settings_are_validated(spec, message):
     from diffsampler_rt.card import CARD_KEY, parse_card
@@ -118,6 +121,47 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
     assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 64, "iterations": 3}
     assert export_main(["set-defaults", str(path), "--sliced-ot", "none"]) == 0
     assert "sliced_ot" not in diffsampler_rt.Model(path).card
+
+
+def test_an_over_relaxed_step_evens_out_sets_in_fewer_iterations():
+    pts = np.random.default_rng(1).random((4, 1024, 2))
+
+    def run(iterations, **step):
+        return polish(pts, iterations, 64, [np.random.default_rng(s) for s in range(4)], **step)
+
+    np.testing.assert_array_equal(run(4, step=1), run(4))  # 1: the sampler's update, bit for bit
+    # coarse imbalances (4 x 4 and 8 x 8 bins) shrink faster per iteration
+    for bins in (4, 8):
+        assert coarse_chi2(run(4, step=1.5), bins) < 0.85 * coarse_chi2(run(4), bins)
+        assert coarse_chi2(run(8, step=1.5), bins) < 0.85 * coarse_chi2(run(8), bins)
+    out = run(8, step=2)
+    assert np.all(np.isfinite(out)) and np.all((out >= 0) & (out < 1))
+    for bad in (0, -1.0, 2.5, float("nan"), True, "1"):
+        with pytest.raises(ValueError, match="step must be a number in"):
+            run(1, step=bad)
+
+
+def test_card_polish_step(tiny_onnx, tmp_path, capsys):
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "4"]) == 0
+    plain = diffsampler_rt.Model(path).generate(256, 2, seed=3)
+    capsys.readouterr()
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
+                        "1.5"]) == 0
+    assert "sliced OT 4 iterations x 64 directions, step 1.5" in capsys.readouterr().out
+    m = diffsampler_rt.Model(path)
+    assert m.card["sliced_ot"] == {"directions": 64, "iterations": 4, "step": 1.5}
+    relaxed = m.generate(256, 2, seed=3)
+    np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False),
+                                  diffsampler_rt.Model(tiny_onnx).generate(256, 2, seed=3))
+    assert not np.allclose(relaxed, plain) and np.all((relaxed >= 0) & (relaxed < 1))
+    assert export_main(["set-defaults", str(path), "--sliced-ot-step", "1.5"]) == 2
+    assert "--sliced-ot-step needs --sliced-ot" in capsys.readouterr().err
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
+                        "3"]) == 2
+    assert "step must be a number in (0, 2], got 3.0" in capsys.readouterr().err
 
 
 def test_docstring_examples():
