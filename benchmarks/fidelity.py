@@ -230,18 +230,10 @@ def evaluate(pool, name: str, a) -> dict:
             _print_row(name, n, res["rows"][n])
             continue
         count, scount, ref_a, ref_b, ref_per_set, stats_a, stats_b = reference(pool, sampler, n, a)
-        # generation is cheap: more generated than reference sets (--gen-sets) cuts the
-        # generated side's noise, the floor (B vs A) stays the reference's
-        gcount = max(scount, a.gen_sets)
-        t = time.perf_counter()
-        gen = model.generate(n, gcount, seed=a.seed)  # set i does not depend on the count
-        gen_per_set = (time.perf_counter() - t) / gcount
-        gu = unwarp(gen) if unwarp else gen
+        gen, gu, gstats, sg, gen_per_set = generated(pool, model, n, count, scount, a)
         ru_a, ru_b = (unwarp(ref_a), unwarp(ref_b)) if unwarp else (ref_a, ref_b)
-        kept = max(count, a.gen_sets)  # generated sets whose per-set statistics are kept
-        gstats = set_stats(pool, gu[:kept])
-        sg, sa, sb = (radial_spectrum(p)[1] for p in (gu, ru_a, ru_b))
-        gen, ref_a = gen[:kept], ref_a[:count]
+        sa, sb = (radial_spectrum(p)[1] for p in (ru_a, ru_b))
+        ref_a = ref_a[:count]
         row = {"count": count, "spectrum_count": scount, "gen_count": len(gen),
                "gen_ms": 1000 * gen_per_set, "ref_ms": 1000 * ref_per_set,
                "mae": spectrum_mae(sg, sa), "floor": spectrum_mae(sb, sa),
@@ -274,6 +266,21 @@ def evaluate(pool, name: str, a) -> dict:
     return res
 
 
+def generated(pool, model, n: int, count: int, scount: int, a):
+    """The generated side of a row: (sets whose statistics are kept, all sets unwarped,
+    their per-set statistics, the mean spectrum of all, seconds per set). Generation is
+    cheap: more generated than reference sets (--gen-sets) cuts the generated side's noise,
+    the floor (B vs A) stays the reference's."""
+    unwarp = UNWARP.get(model.card["sampler"])
+    gcount = max(scount, a.gen_sets)
+    t = time.perf_counter()
+    gen = model.generate(n, gcount, seed=a.seed)  # set i does not depend on the count
+    gen_per_set = (time.perf_counter() - t) / gcount
+    gu = unwarp(gen) if unwarp else gen
+    kept = max(count, a.gen_sets)  # generated sets whose per-set statistics are kept
+    return gen[:kept], gu, set_stats(pool, gu[:kept]), radial_spectrum(gu)[1], gen_per_set
+
+
 def _print_row(name: str, n: int, row: dict) -> None:
     print(f"{name} n={n}: MAE {row['mae']:.4f} (floor {row['floor']:.4f}); "
           + ", ".join(f"{k} {100 * row[k]['rel']:+.1f}%" for k in STATS), flush=True)
@@ -283,17 +290,9 @@ def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
     """A row of ``model`` at n measured now against the reference side of the kept row
     ``kept`` (:func:`stored_reference`): the same counts, the generated sets made now.
     ``example``: draw one reference set for the plot (the kept row has none)."""
-    sampler, unwarp = model.card["sampler"], UNWARP.get(model.card["sampler"])
+    sampler = model.card["sampler"]
     count, scount = kept["count"], kept["spectrum_count"]
-    gcount = max(scount, a.gen_sets)
-    t = time.perf_counter()
-    gen = model.generate(n, gcount, seed=a.seed)
-    gen_per_set = (time.perf_counter() - t) / gcount
-    gu = unwarp(gen) if unwarp else gen
-    keep = max(count, a.gen_sets)
-    gstats = set_stats(pool, gu[:keep])
-    sg = radial_spectrum(gu)[1]
-    gen = gen[:keep]
+    gen, gu, gstats, sg, gen_per_set = generated(pool, model, n, count, scount, a)
     row = {"count": count, "spectrum_count": scount, "gen_count": len(gen),
            "gen_ms": 1000 * gen_per_set, "ref_ms": kept["ref_ms"],
            "mae": spectrum_mae(sg, kept["spec_ref"]), "floor": kept["floor"],
