@@ -197,22 +197,26 @@ def reference(pool, sampler: str, n: int, a):
             {k: v[count:] for k, v in st.items()})
 
 
-def stored_reference(out: Path, name: str, n: int) -> dict:
-    """The kept row of ``name`` at n, whose reference side (``--stored-reference``) stands in
-    for batches A and B: their mean spectrum, the per-set statistics of A, every floor, the
-    counts and the time per reference set. Records under ``"reference"`` the run it is from."""
+def stored_reference(out: Path, name: str, sizes: list[int]) -> dict[int, dict]:
+    """The kept rows of ``name`` at ``sizes``, whose reference side (``--stored-reference``)
+    stands in for batches A and B: their mean spectrum, the per-set statistics of A, every
+    floor, the counts and the time per reference set. Each records under ``"reference"`` the
+    run it is from. Read once, and every size checked before any set is made."""
     path = out / "fidelity" / f"{name}.json"
     old = json.loads(path.read_text()) if path.exists() else {"rows": {}}
-    row = old["rows"].get(str(n))
-    if row is None:
-        raise SystemExit(f"error: {name} has no kept row at n = {n} to take the reference "
-                         "figures from; measure it without --stored-reference")
-    row["spec_ref"] = np.asarray(row["spec_ref"])
-    # the run that drew the references: a row may itself be kept (--merge) or stored
-    row["reference"] = (row.get("reference") or row.get("measured")
-                        or {"date": old["date"], "settings": old["settings"]})
-    row["reference"] = {k: row["reference"][k] for k in ("date", "settings")}
-    return row
+    rows = {}
+    for n in sizes:
+        row = old["rows"].get(str(n))
+        if row is None:
+            raise SystemExit(f"error: {name} has no kept row at n = {n} to take the reference "
+                             "figures from; measure it without --stored-reference")
+        row["spec_ref"] = np.asarray(row["spec_ref"])
+        # the run that drew the references: a row may itself be kept (--merge) or stored
+        ran = (row.get("reference") or row.get("measured")
+               or {"date": old["date"], "settings": old["settings"]})
+        row["reference"] = {k: ran[k] for k in ("date", "settings")}
+        rows[n] = row
+    return rows
 
 
 def evaluate(pool, name: str, a) -> dict:
@@ -223,9 +227,12 @@ def evaluate(pool, name: str, a) -> dict:
     res = {"name": name, "sampler": sampler, "card": card, "rows": {},
            "model_sha256": model_hash(name), "settings": settings(a, sampler),
            "date": dt.date.today().isoformat()}
+    # solver_sweep passes its own namespace, without the option
+    stored = (stored_reference(a.out, name, a.sizes)
+              if getattr(a, "stored_reference", False) else None)
     for n in a.sizes:
-        if getattr(a, "stored_reference", False):  # solver_sweep passes its own namespace
-            res["rows"][n] = against_stored(pool, model, n, a, stored_reference(a.out, name, n),
+        if stored:
+            res["rows"][n] = against_stored(pool, model, n, a, stored[n],
                                             example=n == a.sizes[0])
             _print_row(name, n, res["rows"][n])
             continue

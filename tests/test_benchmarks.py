@@ -64,8 +64,9 @@ def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
 def test_fidelity_against_stored_reference_figures(tmp_path):
     import shutil
     env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path / "cache")}
-    cmd = [sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen", "--sizes", "64",
-           "--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
+    run = [sys.executable, "benchmarks/fidelity.py", "--models", "sobol_owen", "--sets", "3",
+           "--workers", "1", "--out", str(tmp_path / "out")]
+    cmd = run + ["--sizes", "64"]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
@@ -85,7 +86,7 @@ def test_fidelity_against_stored_reference_figures(tmp_path):
     md = (tmp_path / "out" / "fidelity.md").read_text()
     assert "Reference side stored (`--stored-reference`): n = 64 from the run of" in md
     assert " --stored-reference` on " in md
-    res = subprocess.run(cmd[:5] + ["256"] + cmd[6:] + ["--stored-reference"],
+    res = subprocess.run(run + ["--sizes", "64", "256", "--stored-reference"],
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode != 0 and "sobol_owen has no kept row at n = 256" in res.stderr
 
