@@ -252,6 +252,8 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
             for k in (4, 8)]
     assert out[0].startswith("tiny: k=4 (12 sets) spacing coefficient")
     assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
+    assert main(["spacing", str(fresh), "--fresh-sets", "0"]) == 2
+    assert capsys.readouterr().err == "error: --fresh-sets must be >= 1, got 0\n"
     pooled = tmp_path / "pooled.json"
     pooled.write_text(json.dumps(replace(cfg, data=replace(cfg.data, pool_sizes=(20, 10))).to_dict()))
     assert main(["spacing", str(pooled), "--percentile", "50"]) == 0

@@ -76,6 +76,8 @@ def _spacing(args: argparse.Namespace) -> None:
                           stratified=cfg.data.embedding == "stratified")
                 for k, pool in pools.items()}
     else:  # trained on fresh sets: measure as many drawn from the sampler (config's seed)
+        if args.fresh_sets < 1:
+            raise ValueError(f"--fresh-sets must be >= 1, got {args.fresh_sets}")
         rng = np.random.default_rng(cfg.seed)
         sets = {k: sample(cfg.data.sampler, k * k, count=args.fresh_sets, seed=rng,
                           workers=args.workers) for k in sorted(cfg.data.sizes)}
