@@ -268,14 +268,14 @@ def test_fidelity_marks_only_misses_beyond_their_noise():
                 "gen_sets": gen.tolist(), "ref_sets": ref.tolist()}
 
     # two standard errors of the relative difference: 2 sqrt(0.25/64 + 0.25/64) at 64 a side
-    few = stat(ref[:64] * 1.0, ref[64:128])
+    few = stat(ref[:64], ref[64:128])
     assert abs(two_se(few) / (1 + few["rel"]) - 2 * np.sqrt(0.5 / 64)) < 0.05
     # a true 8 % excess: with 64 sets a side noise could explain it, with 20 000 it cannot
     assert miss_mark(stat(1.08 * ref[:64], ref[64:128]), 0.05) in ("", " ✗?")
     many = stat(1.08 * ref[:20_000], ref[20_000:40_000])
     assert miss_mark(many, 0.05) == " ✗" and two_se(many) < 0.02
     assert miss_mark(stat(ref[:20_000], ref[20_000:40_000]), 0.05) == ""
-    # kept results without per-set values (none are bundled, but a format may lack them)
+    # a kept result without per-set values (every current one has them): no interval
     assert two_se({"rel": 0.2, "floor": 0.0}) is None
     assert _fmt_rel({"rel": 0.2, "floor": 0.01}, 0.05) == "+20.0 % ✗ (+1.0)"
     assert _fmt_rel(many, 0.05).startswith("+8.")
