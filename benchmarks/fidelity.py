@@ -247,11 +247,7 @@ def evaluate(pool, name: str, a) -> dict:
                "spec_gen": sg, "spec_ref": sa, "example_gen": gen[0], "example_ref": ref_a[0]}
         for k in STATS:
             ma, mb = stats_a[k].mean(), stats_b[k].mean()
-            row[k] = {"gen": float(gstats[k].mean()), "ref": float(ma),
-                      "rel": float(gstats[k].mean() / ma - 1), "floor": float(mb / ma - 1),
-                      # per set, 6 significant digits: for the violin plots
-                      "gen_sets": [float(f"{v:.6g}") for v in gstats[k]],
-                      "ref_sets": [float(f"{v:.6g}") for v in stats_a[k]]}
+            row[k] = _statistic(gstats[k], float(ma), float(mb / ma - 1), _per_set(stats_a[k]))
         if n == 1024 and seed_curve(sampler) is not None:
             row["mae_seed_gen"] = spectrum_mae(sg, seed_curve(sampler))
             row["mae_seed_ref"] = spectrum_mae(sa, seed_curve(sampler))
@@ -288,6 +284,18 @@ def generated(pool, model, n: int, count: int, scount: int, a):
     return gen[:kept], gu, set_stats(pool, gu[:kept]), radial_spectrum(gu)[1], gen_per_set
 
 
+def _per_set(values: np.ndarray) -> list[float]:
+    """Per-set values to 6 significant digits, as kept: for the violins and the intervals."""
+    return [float(f"{v:.6g}") for v in values]
+
+
+def _statistic(gen: np.ndarray, ref: float, floor: float, ref_sets: list[float]) -> dict:
+    """One statistic of a row: the generated sets' per-set values against the reference mean
+    ``ref`` of batch A (its per-set values ``ref_sets``) and the floor (B vs A)."""
+    return {"gen": float(gen.mean()), "ref": ref, "rel": float(gen.mean() / ref - 1),
+            "floor": floor, "gen_sets": _per_set(gen), "ref_sets": ref_sets}
+
+
 def _print_row(name: str, n: int, row: dict) -> None:
     print(f"{name} n={n}: MAE {row['mae']:.4f} (floor {row['floor']:.4f}); "
           + ", ".join(f"{k} {100 * row[k]['rel']:+.1f}%" for k in STATS), flush=True)
@@ -308,11 +316,7 @@ def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
         row["example_gen"] = gen[0]
         row["example_ref"] = sample(sampler, n, count=1, seed=a.seed)[0]
     for k in STATS:
-        ref = kept[k]["ref"]
-        row[k] = {"gen": float(gstats[k].mean()), "ref": ref,
-                  "rel": float(gstats[k].mean() / ref - 1), "floor": kept[k]["floor"],
-                  "gen_sets": [float(f"{v:.6g}") for v in gstats[k]],
-                  "ref_sets": kept[k]["ref_sets"]}
+        row[k] = _statistic(gstats[k], kept[k]["ref"], kept[k]["floor"], kept[k]["ref_sets"])
     if "mae_seed_ref" in kept:
         row["mae_seed_gen"] = spectrum_mae(sg, seed_curve(sampler))
         row["mae_seed_ref"] = kept["mae_seed_ref"]
@@ -441,16 +445,19 @@ def two_se(d: dict) -> float | None:
 def miss_mark(d: dict, tol: float) -> str:
     """"" within the tolerance, " ✗" a miss beyond its noise (the tolerance is outside the
     difference's two-standard-error interval), " ✗?" a miss that noise could explain."""
-    if abs(d["rel"]) <= tol:
+    return _mark(d["rel"], two_se(d), tol)
+
+
+def _mark(rel: float, pm: float | None, tol: float) -> str:
+    if abs(rel) <= tol:
         return ""
-    pm = two_se(d)
-    return " ✗" if pm is None or abs(d["rel"]) - pm > tol else " ✗?"
+    return " ✗" if pm is None or abs(rel) - pm > tol else " ✗?"
 
 
 def _fmt_rel(d: dict, tol: float) -> str:
     pm = two_se(d)
     spread = "" if pm is None else f" ±{100 * pm:.1f}"
-    return f"{100 * d['rel']:+.1f}{spread} %{miss_mark(d, tol)} ({100 * d['floor']:+.1f})"
+    return f"{100 * d['rel']:+.1f}{spread} %{_mark(d['rel'], pm, tol)} ({100 * d['floor']:+.1f})"
 
 
 def _train_time(secs: float, card: dict, cfg: dict) -> str:
