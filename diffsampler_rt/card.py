@@ -9,6 +9,7 @@ import json
 from typing import Any, Mapping
 
 from . import per_size
+from .coarse_noise import settings_problem as coarse_problem
 from .density import check_table
 from .errors import ModelFormatError
 from .schedule import betas
@@ -111,6 +112,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: structure {structure!r} cannot guide the solver "
                                "(structure_guidance must be 0 or absent)")
     if "sliced_ot" in card and (problem := sliced_problem(card["sliced_ot"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
+    if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):
         raise ModelFormatError(f"{source}: {problem}")

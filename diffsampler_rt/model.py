@@ -19,6 +19,7 @@ from .grid import decode, encode_stratified, wrap
 from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
+from .coarse_noise import gain_at, shape_noise
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
 from .structure import _impose as impose_unchecked
@@ -166,7 +167,10 @@ class Model:
             that where a structure is imposed the spacing comes before it, so that the
             structure holds exactly (ldbn: the n-rooks projection then puts every point
             back in a strip of its own cell, which keeps most of the spacing).
-            ``False`` returns the network's sets as decoded.
+            Before all that, ``"coarse_noise"`` (ldbn) scales the coarse Fourier modes
+            of the solver's starting noise, so that the sets vary at large scales as
+            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`).
+            ``False`` returns the network's sets as decoded, from white noise.
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
             So is a toroidal model's shift: a net with circular padding (``"padding":
@@ -229,12 +233,14 @@ class Model:
         spacing = radius(self.card, k * k) if structure else None
         polishing = self.card.get("sliced_ot") if structure else None
         sliced = iterations_at(polishing, k * k) if polishing else 0
+        coarse = self.card.get("coarse_noise") if structure else None
+        gain = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
         return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, spacing, sliced)
+                            imposed, spacing, sliced, gain)
 
     def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool,
-                spacing: float | None, sliced: int):
+                spacing: float | None, sliced: int, gain: tuple[float, float] | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
@@ -256,6 +262,8 @@ class Model:
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
+            if gain is not None:
+                x = shape_noise(x, *gain)
 
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])

@@ -3,7 +3,8 @@
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...]
-[--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]``:
+[--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
+[--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]``:
 change the sampling defaults in an exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
@@ -62,7 +63,27 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--sliced-ot-step", type=float, metavar="S",
                    help="scale every sliced-OT move by S, 0 < S <= 2 (default 1: the "
                         "sampler's own update; with --sliced-ot)")
+    p.add_argument("--coarse-noise", metavar="G|N:G,N:G,...|none",
+                   help="scale the coarse Fourier modes of the solver's starting noise by G "
+                        "(> 1: sets vary more at large scales); N:G pairs give G per size "
+                        "(linear in log n between them); none: remove")
+    p.add_argument("--coarse-noise-cut", type=float, metavar="C",
+                   help="modes up to C times the grid's Nyquist frequency, 0 < C <= 1 "
+                        "(default 0.25; with --coarse-noise)")
     args = p.parse_args(argv)
+    coarse = args.coarse_noise
+    if args.coarse_noise_cut is not None and (coarse is None or coarse == "none"):
+        print("error: --coarse-noise-cut needs --coarse-noise G or N:G,...", file=sys.stderr)
+        return 2
+    if coarse is not None and coarse != "none":
+        try:
+            table = parse_table(coarse, "gain", float)
+        except ValueError:
+            print(f"error: --coarse-noise must be a number, N:G pairs separated by commas, or "
+                  f"none, got {coarse!r}", file=sys.stderr)
+            return 2
+        cut = 0.25 if args.coarse_noise_cut is None else args.coarse_noise_cut
+        coarse = {"cut": cut, **(table if isinstance(table, dict) else {"gain": table})}
     sliced = args.sliced_ot
     for flag, value in (("directions", args.sliced_ot_directions),
                         ("step", args.sliced_ot_step)):
@@ -99,6 +120,8 @@ def set_defaults_main(argv: list[str]) -> int:
             return 2
     if _missing(args.model):
         return 2
+    from diffsampler_rt.coarse_noise import describe as describe_coarse
+
     from .defaults import set_defaults
     try:
         card = set_defaults(args.model, solver=args.solver, steps=args.steps,
@@ -106,14 +129,15 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure_min_side=args.structure_min_side,
                             structure_guidance=args.structure_guidance,
                             structure_sides=sides, sliced_ot=sliced,
-                            min_spacing=spacing)
+                            min_spacing=spacing, coarse_noise=coarse)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
           f"{card['default_steps']} steps, structure {structure_text(card)}, "
           f"sliced OT {sliced_text(card.get('sliced_ot'))}, "
-          f"min spacing {format_spacing(card.get('min_spacing'))}")
+          f"min spacing {format_spacing(card.get('min_spacing'))}, "
+          f"coarse noise {describe_coarse(card.get('coarse_noise'))}")
     return 0
 
 

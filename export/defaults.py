@@ -1,4 +1,4 @@
-"""Change the sampling defaults (solver, steps, structure, spacing) in an exported model's card.
+"""Change the sampling defaults (solver, steps, structure, spacing, noise) in an exported model's card.
 
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
 ``steps``, and what it restores on the decoded sets: a net or n-rooks structure
@@ -8,6 +8,8 @@ nearest rank-1 lattice (``diffsampler_rt.lattice``), a
 few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing
 (``diffsampler_rt.spacing``; the coefficient comes from the training sets,
 ``python -m trainer spacing CONFIG``);
+and with ``coarse_noise`` the solver's starting noise has its coarse Fourier modes scaled
+(``diffsampler_rt.coarse_noise``);
 they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
 they are edited in place rather than baked in at export.
 """
@@ -44,11 +46,13 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
                  structure_sides: list[int] | None = None,
                  sliced_ot: dict | str | None = None,
-                 min_spacing: float | dict | str | None = None) -> dict:
+                 min_spacing: float | dict | str | None = None,
+                 coarse_noise: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
-    ``min_spacing`` of the card in ``path`` (``"none"`` removes a structure, with its three
-    settings, a sliced-OT polish or a spacing); returns the card."""
+    ``min_spacing`` / ``coarse_noise`` of the card in ``path`` (``"none"`` removes a
+    structure, with its three settings, a sliced-OT polish, a spacing or a noise gain);
+    returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -78,6 +82,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card.pop("sliced_ot", None)
         elif sliced_ot is not None:
             card["sliced_ot"] = sliced_ot
+        if coarse_noise == "none":
+            card.pop("coarse_noise", None)
+        elif coarse_noise is not None:
+            card["coarse_noise"] = coarse_noise
         if min_spacing == "none":
             card.pop("min_spacing", None)
         elif min_spacing is not None:

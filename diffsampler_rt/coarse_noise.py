@@ -1,0 +1,107 @@
+"""A gain on the coarse scales of the solver's starting noise (card field ``"coarse_noise"``).
+
+A small net can make sets that are more even at large scales than its sampler's: the
+bundled ldbn's sets had about 25 % less power than the sampler's at the frequencies below
+half the grid's (radial spectrum below 0.5 sqrt(n)) and integrated Gaussians 27 % better,
+where the aim is the sampler's behaviour, not a better one. A set's large scales follow
+those of the noise the solver starts from, so scaling the starting noise's Fourier modes
+up to ``cut`` times the grid's Nyquist frequency (k / 2 cycles across the square) by
+``gain`` moves them (gain > 1: more large-scale variation, < 1: less) and leaves the finer
+scales, where the net's pattern lives, nearly as they were. The starting noise stays a
+stationary Gaussian field on the k x k grid, no longer white; its mean (the zero
+frequency) is left alone. Each set is shaped on its own, so batching does not change it.
+
+Card value: ``{"cut": C, "gain": G}``, or ``{"cut": C, "n": [sizes], "gain": [G per
+size]}``: linear in log n between the listed sizes, the end values beyond (like
+``"min_spacing"``). It is chosen by measurement against the reference sampler
+(``python -m export set-defaults MODEL --coarse-noise ...``).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from . import per_size
+
+#: largest gain a card may ask for (the ones measured to help are 0.6-1.5)
+MAX_GAIN = 4.0
+
+_FORM = ("'coarse_noise' must be {\"cut\": C, \"gain\": G} or {\"cut\": C, \"n\": [sizes], "
+         "\"gain\": [G per size]}")
+
+
+def gain_at(spec: dict, n: int) -> float:
+    """The gain at n points of a card's ``"coarse_noise"``."""
+    if "n" in spec:
+        return per_size.at(spec["n"], spec["gain"], n)
+    return float(spec["gain"])
+
+
+def coarse_filter(k: int, gain: float, cut: float) -> np.ndarray:
+    """Multiplier of the (k, k // 2 + 1) real-FFT modes of a k x k field: ``gain`` where
+    0 < |frequency| <= cut * k / 2 (frequencies in cycles across the grid), else 1."""
+    fy = np.fft.fftfreq(k) * k
+    fx = np.fft.rfftfreq(k) * k
+    r = np.hypot(fy[:, None], fx[None, :])
+    return np.where((r > 0) & (r <= cut * k / 2), gain, 1.0)
+
+
+def shape_noise(x: np.ndarray, gain: float, cut: float) -> np.ndarray:
+    """``x`` (..., k, k), white Gaussian noise, with its coarse modes scaled by ``gain``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.coarse_noise import shape_noise
+    >>> x = np.random.default_rng(0).standard_normal((2, 16, 16))
+    >>> y = shape_noise(x, 1.5, 0.25)
+    >>> y.shape, bool(np.allclose(y.mean(axis=(-2, -1)), x.mean(axis=(-2, -1))))
+    ((2, 16, 16), True)
+    >>> shape_noise(x, 1.0, 0.25) is x
+    True
+    """
+    k = x.shape[-1]
+    if gain == 1:  # bit for bit: a per-size table may pass through 1
+        return x
+    if x.shape[-2] != k:
+        raise ValueError(f"noise must be square in its last two axes, got shape {x.shape}")
+    spectrum = np.fft.rfft2(x) * coarse_filter(k, gain, cut)
+    return np.fft.irfft2(spectrum, s=(k, k))
+
+
+def describe(spec: dict | None) -> str:
+    """The card value in words: "none", "gain 1.4 up to 0.25 x Nyquist", or
+    "gain 1.3 / 1.5 at n = 64 / 1024 (log-linear) up to 0.25 x Nyquist"."""
+    if not spec:
+        return "none"
+    if "n" in spec:
+        gain = ("gain " + " / ".join(f"{g:g}" for g in spec["gain"]) + " at n = "
+                + " / ".join(map(str, spec["n"])) + " (log-linear)")
+    else:
+        gain = f"gain {spec['gain']:g}"
+    return f"{gain} up to {spec['cut']:g} x Nyquist"
+
+
+def _number(v: Any, low: float, high: float) -> bool:
+    return (not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
+            and low < v <= high)
+
+
+def settings_problem(spec: Any) -> str | None:
+    """Why a card's ``"coarse_noise"`` value is invalid, or None."""
+    if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
+        return f"{_FORM}, got {spec!r}"
+    if not _number(spec["cut"], 0, 1):
+        return f"'coarse_noise' cut must be a number in (0, 1], got {spec['cut']!r}"
+    gains = spec["gain"]
+    if "n" in spec:
+        if not (per_size.sizes_ok(spec["n"]) and isinstance(gains, list)
+                and len(gains) == len(spec["n"])):
+            return (f"'coarse_noise' n and gain must be lists of the same length, n strictly "
+                    f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
+    else:
+        gains = [gains]
+    if not all(_number(g, 0, MAX_GAIN) for g in gains):
+        return f"'coarse_noise' gain must be numbers in (0, {MAX_GAIN:g}], got {spec['gain']!r}"
+    return None

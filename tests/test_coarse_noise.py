@@ -1,0 +1,123 @@
+"""The gain on the coarse scales of the solver's starting noise (diffsampler_rt.coarse_noise)."""
+from __future__ import annotations
+
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, coarse_noise
+from diffsampler_rt.coarse_noise import coarse_filter, gain_at, settings_problem, shape_noise
+from diffsampler_rt.spectrum import radial_spectrum
+
+
+def test_only_the_coarse_modes_are_scaled():
+    x = np.random.default_rng(0).standard_normal((3, 2, 32, 32))
+    y = shape_noise(x, 1.5, 0.25)
+    X, Y = np.fft.rfft2(x), np.fft.rfft2(y)
+    f = np.fft.fftfreq(32) * 32
+    r = np.hypot(f[:, None], (np.fft.rfftfreq(32) * 32)[None, :])
+    coarse = (r > 0) & (r <= 4)  # 0.25 x the Nyquist frequency of 16 cycles
+    np.testing.assert_allclose(Y[..., coarse], 1.5 * X[..., coarse], atol=1e-10)
+    np.testing.assert_allclose(Y[..., ~coarse], X[..., ~coarse], atol=1e-10)
+    np.testing.assert_allclose(y.mean(axis=(-2, -1)), x.mean(axis=(-2, -1)), atol=1e-12)
+    assert np.isrealobj(y) and y.shape == x.shape
+    assert shape_noise(x, 1.0, 0.25) is x  # bit for bit where a table passes through 1
+    # each set on its own: shaping a batch is shaping its sets one by one
+    np.testing.assert_array_equal(shape_noise(x[1:2], 1.5, 0.25), y[1:2])
+    # at k = 8 only |frequency| = 1: (0, 1), (1, 0) and (-1, 0) in the real FFT's half-plane
+    assert coarse_filter(8, 2.0, 0.25).sum() == 8 * 5 + 3
+    with pytest.raises(ValueError, match="square"):
+        shape_noise(np.zeros((2, 8, 4)), 1.5, 0.25)
+
+
+def test_per_size_gain():
+    spec = {"cut": 0.25, "n": [64, 1024], "gain": [1.2, 1.6]}
+    assert gain_at(spec, 16) == pytest.approx(1.2) and gain_at(spec, 4096) == pytest.approx(1.6)
+    assert gain_at(spec, 256) == pytest.approx(1.4)  # log-linear between the listed sizes
+    assert gain_at({"cut": 0.5, "gain": 1.3}, 576) == 1.3
+    assert coarse_noise.describe(spec) == ("gain 1.2 / 1.6 at n = 64 / 1024 (log-linear) up to "
+                                           "0.25 x Nyquist")
+    assert coarse_noise.describe(None) == "none"
+
+
+@pytest.mark.parametrize("spec, message", [
+    (1.4, "must be {\"cut\""),
+    ({"gain": 1.4}, "must be {\"cut\""),
+    ({"cut": 0.25, "gain": 1.4, "step": 1}, "must be {\"cut\""),
+    ({"cut": 0, "gain": 1.4}, "cut must be a number in (0, 1], got 0"),
+    ({"cut": 1.5, "gain": 1.4}, "got 1.5"),
+    ({"cut": 0.25, "gain": 0}, "gain must be numbers in (0, 4], got 0"),
+    ({"cut": 0.25, "gain": 5.0}, "got 5.0"),
+    ({"cut": 0.25, "gain": True}, "got True"),
+    ({"cut": 0.25, "gain": float("nan")}, "got nan"),
+    ({"cut": 0.25, "n": [256, 64], "gain": [1, 2]}, "same length"),
+    ({"cut": 0.25, "n": [64, 256], "gain": [1]}, "same length"),
+    ({"cut": 0.25, "n": [64, 256], "gain": [1, -1]}, "got [1, -1]"),
+])
+def test_card_settings_are_validated(spec, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    assert message in settings_problem(spec)
+    card = {**diffsampler_rt.load("rank1").card, "coarse_noise": spec}
+    with pytest.raises(ModelFormatError, match="model card field 'coarse_noise'"):
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    assert settings_problem({"cut": 0.25, "n": [64, 256], "gain": [1, 1.5]}) is None
+
+
+def test_card_gain_is_applied(tmp_path, capsys):
+    """set-defaults writes the card field; the runtime shapes the noise at the sizes where the
+    gain is not 1, batches alike, and ``structure=False`` starts from white noise."""
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(diffsampler_rt.load("ldbn").path, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=2, structure=False)
+             for n in (64, 256)}
+    assert export_main(["set-defaults", str(path), "--coarse-noise", "64:1,256:1.5",
+                        "--coarse-noise-cut", "0.5"]) == 0
+    assert "coarse noise gain 1 / 1.5 at n = 64 / 256 (log-linear) up to 0.5" in \
+        capsys.readouterr().out
+    m = diffsampler_rt.Model(path)
+    assert m.card["coarse_noise"] == {"cut": 0.5, "n": [64, 256], "gain": [1.0, 1.5]}
+    np.testing.assert_array_equal(m.generate(64, 3, seed=2, structure=False), plain[64])
+    np.testing.assert_array_equal(m.generate(256, 3, seed=2, structure=False), plain[256])
+    shaped = m.generate(256, 3, seed=2)
+    assert np.all((shaped >= 0) & (shaped < 1)) and shaped.shape == (3, 256, 2)
+    np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=2))),
+                                  shaped)
+    unshaped = diffsampler_rt.load("ldbn").generate(256, 3, seed=2)
+    assert not np.allclose(shaped, unshaped)
+    assert export_main(["set-defaults", str(path), "--coarse-noise", "1.2"]) == 0
+    assert diffsampler_rt.Model(path).card["coarse_noise"] == {"cut": 0.25, "gain": 1.2}
+    for bad, err in ((["--coarse-noise-cut", "0.5"], "--coarse-noise-cut needs --coarse-noise"),
+                     (["--coarse-noise", "x"], "--coarse-noise must be a number"),
+                     (["--coarse-noise", "9"], "gain must be numbers in (0, 4], got 9.0")):
+        capsys.readouterr()
+        assert export_main(["set-defaults", str(path), *bad]) == 2
+        assert err in capsys.readouterr().err
+    assert export_main(["set-defaults", str(path), "--coarse-noise", "none"]) == 0
+    assert "coarse_noise" not in diffsampler_rt.Model(path).card
+
+
+def test_a_gain_above_one_adds_large_scale_variation():
+    """The point of the knob: on the bundled ldbn net, a gain of 1.5 on the coarse quarter of
+    the grid's frequencies (below 0.125 sqrt(n) in the radial spectrum's units) raises the
+    sets' power there, where the net's sets are more even than the sampler's, and leaves the
+    spectrum's peak about as it was."""
+    m = diffsampler_rt.load("ldbn")
+    plain = m.generate(256, 24, seed=4)
+    white = m.generate(256, 24, seed=4, structure=False)
+    m.card["coarse_noise"] = {"cut": 0.25, "gain": 1.5}
+    f, p = radial_spectrum(plain)
+    _, s = radial_spectrum(m.generate(256, 24, seed=4))
+    low = (f > 0) & (f < 0.125)  # the bins below 0.125 sqrt(n)
+    assert s[low].mean() > 1.5 * p[low].mean()
+    peak = (f >= 0.75) & (f < 1.5)
+    assert abs(s[peak].mean() / p[peak].mean() - 1) < 0.1
+    np.testing.assert_array_equal(m.generate(256, 24, seed=4, structure=False), white)
+
+
+def test_docstring_examples():
+    assert doctest.testmod(coarse_noise).failed == 0
