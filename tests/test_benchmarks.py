@@ -279,3 +279,19 @@ def test_fidelity_marks_only_misses_beyond_their_noise():
     assert two_se({"rel": 0.2, "floor": 0.0}) is None
     assert _fmt_rel({"rel": 0.2, "floor": 0.01}, 0.05) == "+20.0 % ✗ (+1.0)"
     assert _fmt_rel(many, 0.05).startswith("+8.")
+
+
+def test_fidelity_tally_counts_every_figure_by_its_mark():
+    from benchmarks.fidelity import STATS, _tally_lines, tally
+
+    def row(rels: dict) -> dict:  # no per-set values: a miss is always beyond noise
+        return {k: {"rel": rels.get(k, 0.0), "floor": 0.0} for k in STATS}
+
+    noisy = {"rel": 0.08, "floor": 0.0, "gen_sets": [0.5, 1.5, 1.0], "ref_sets": [0.6, 1.4]}
+    results = [{"name": "a", "rows": {64: row({"l2_star": 0.2}),
+                                      256: {**row({}), "gauss_mse": noisy}}},
+               {"name": "b", "rows": {64: row({"min_distance": -0.08, "ot_energy": 0.06})}}]
+    assert tally(results) == {"a": {"within": 8, "noise": 1, "beyond": 1},
+                              "b": {"within": 4, "noise": 0, "beyond": 1}}
+    lines = _tally_lines(results)
+    assert "| a | 10 | 8 | 1 | 1 |" in lines and lines[-1] == "| **all** | 15 | 12 | 1 | 2 |"
