@@ -24,7 +24,7 @@ import numpy as np
 
 from . import per_size
 
-#: largest gain a card may ask for (the ones measured to help are 0.6-1.5)
+#: largest gain a card may ask for (the bundled cards use 1-1.7)
 MAX_GAIN = 4.0
 
 _FORM = ("'coarse_noise' must be {\"cut\": C, \"gain\": G} or {\"cut\": C, \"n\": [sizes], "
@@ -62,10 +62,10 @@ def shape_noise(x: np.ndarray, gain: float, cut: float) -> np.ndarray:
     True
     """
     k = x.shape[-1]
-    if gain == 1:  # bit for bit: a per-size table may pass through 1
-        return x
     if x.shape[-2] != k:
         raise ValueError(f"noise must be square in its last two axes, got shape {x.shape}")
+    if gain == 1:  # bit for bit: a per-size table may pass through 1
+        return x
     spectrum = np.fft.rfft2(x) * coarse_filter(k, gain, cut)
     return np.fft.irfft2(spectrum, s=(k, k))
 

@@ -13,13 +13,13 @@ import onnxruntime as ort
 from . import _validate
 from ._progress import Progress
 from .card import CARD_KEY, parse_card
+from .coarse_noise import gain_at, shape_noise
 from .density import warp
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
-from .coarse_noise import gain_at, shape_noise
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
 from .structure import _impose as impose_unchecked
@@ -167,7 +167,7 @@ class Model:
             that where a structure is imposed the spacing comes before it, so that the
             structure holds exactly (ldbn: the n-rooks projection then puts every point
             back in a strip of its own cell, which keeps most of the spacing).
-            Before all that, ``"coarse_noise"`` (ldbn) scales the coarse Fourier modes
+            Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
             of the solver's starting noise, so that the sets vary at large scales as
             much as the sampler's (:mod:`diffsampler_rt.coarse_noise`).
             ``False`` returns the network's sets as decoded, from white noise.

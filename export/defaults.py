@@ -1,4 +1,4 @@
-"""Change the sampling defaults (solver, steps, structure, spacing, noise) in an exported model's card.
+"""Change the sampling defaults (solver, steps, structure, spacing, noise) of a model's card.
 
 The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
 ``steps``, and what it restores on the decoded sets: a net or n-rooks structure
