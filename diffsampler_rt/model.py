@@ -234,13 +234,13 @@ class Model:
         polishing = self.card.get("sliced_ot") if structure else None
         sliced = iterations_at(polishing, k * k) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
-        gain = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
+        shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
         return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, spacing, sliced, gain)
+                            imposed, spacing, sliced, shaping)
 
     def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool,
-                spacing: float | None, sliced: int, gain: tuple[float, float] | None):
+                spacing: float | None, sliced: int, shaping: tuple[float, float] | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
@@ -262,8 +262,8 @@ class Model:
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
-            if gain is not None:
-                x = shape_noise(x, *gain)
+            if shaping is not None:  # (gain, cut) of the card's "coarse_noise"
+                x = shape_noise(x, *shaping)
 
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])

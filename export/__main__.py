@@ -76,11 +76,8 @@ def set_defaults_main(argv: list[str]) -> int:
         print("error: --coarse-noise-cut needs --coarse-noise G or N:G,...", file=sys.stderr)
         return 2
     if coarse is not None and coarse != "none":
-        try:
-            table = parse_table(coarse, "gain", float)
-        except ValueError:
-            print(f"error: --coarse-noise must be a number, N:G pairs separated by commas, or "
-                  f"none, got {coarse!r}", file=sys.stderr)
+        table = _table_arg(coarse, "gain", float, "--coarse-noise", "a number", "N:G")
+        if table is None:
             return 2
         cut = 0.25 if args.coarse_noise_cut is None else args.coarse_noise_cut
         coarse = {"cut": cut, **(table if isinstance(table, dict) else {"gain": table})}
@@ -92,16 +89,13 @@ def set_defaults_main(argv: list[str]) -> int:
             return 2
     directions = 64 if args.sliced_ot_directions is None else args.sliced_ot_directions
     if sliced is not None and sliced != "none":
-        try:
-            table = parse_table(sliced, "iterations", _whole)
-            sliced = {"directions": directions,
-                      **(table if isinstance(table, dict) else {"iterations": table})}
-            if args.sliced_ot_step is not None:
-                sliced["step"] = args.sliced_ot_step
-        except ValueError:
-            print(f"error: --sliced-ot must be an integer, N:K pairs separated by commas, or "
-                  f"none, got {sliced!r}", file=sys.stderr)
+        table = _table_arg(sliced, "iterations", _whole, "--sliced-ot", "an integer", "N:K")
+        if table is None:
             return 2
+        sliced = {"directions": directions,
+                  **(table if isinstance(table, dict) else {"iterations": table})}
+        if args.sliced_ot_step is not None:
+            sliced["step"] = args.sliced_ot_step
     sides = args.structure_sides
     if sides is not None:
         try:
@@ -112,11 +106,8 @@ def set_defaults_main(argv: list[str]) -> int:
             return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
-        try:
-            spacing = parse_table(spacing, "c", float)
-        except ValueError:
-            print(f"error: --min-spacing must be a number, N:C pairs separated by commas, or "
-                  f"none, got {spacing!r}", file=sys.stderr)
+        spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
+        if spacing is None:
             return 2
     if _missing(args.model):
         return 2
@@ -163,6 +154,17 @@ def sliced_text(spec: dict | None) -> str:
     else:
         text = f"{spec['iterations']} iterations x {spec['directions']} directions"
     return text + (f", step {spec['step']:g}" if "step" in spec else "")
+
+
+def _table_arg(text: str, key: str, value, flag: str, one: str, pairs: str):
+    """:func:`parse_table` of a flag's value, or None after saying on stderr (for exit
+    status 2) what ``flag`` takes."""
+    try:
+        return parse_table(text, key, value)
+    except ValueError:
+        print(f"error: {flag} must be {one}, {pairs} pairs separated by commas, or none, "
+              f"got {text!r}", file=sys.stderr)
+        return None
 
 
 def parse_table(text: str, key: str, value=float):
