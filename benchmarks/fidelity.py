@@ -22,6 +22,7 @@ fidelity.json and fidelity/<model>.png.
     python benchmarks/fidelity.py [--models gbn sot] [--sets 128] [--workers 2]
     python benchmarks/fidelity.py --report-only   # rebuild the report from kept results
     python benchmarks/fidelity.py --models sot_fast --stored-reference   # the kept references
+    python benchmarks/fidelity.py --models sot_ramp_fast --stored-reference sot_ramp  # teacher's
 """
 from __future__ import annotations
 
@@ -198,24 +199,33 @@ def reference(pool, sampler: str, n: int, a):
             {k: v[count:] for k, v in st.items()})
 
 
-def stored_reference(out: Path, name: str, sizes: list[int]) -> dict[int, dict]:
-    """The kept rows of ``name`` at ``sizes``, whose reference side (``--stored-reference``)
-    stands in for batches A and B: their mean spectrum, the per-set statistics of A, every
-    floor, the counts and the time per reference set. Each records under ``"reference"`` the
-    run it is from. Read once, and every size checked before any set is made."""
-    path = out / "fidelity" / f"{name}.json"
+def stored_reference(out: Path, name: str, sizes: list[int], sampler: str,
+                     source: str | None = None) -> dict[int, dict]:
+    """The kept rows of ``source`` (default ``name``) at ``sizes``, whose reference side
+    (``--stored-reference [MODEL]``) stands in for batches A and B: their mean spectrum, the
+    per-set statistics of A, every floor, the counts and the time per reference set. Each
+    records under ``"reference"`` the run it is from (and the model, when another one's).
+    ``source`` must model the same ``sampler`` (e.g. a distilled student's teacher). Read
+    once, and every size checked before any set is made."""
+    source = source or name
+    path = out / "fidelity" / f"{source}.json"
     old = json.loads(path.read_text()) if path.exists() else {"rows": {}}
+    if old["rows"] and old["sampler"] != sampler:
+        raise SystemExit(f"error: {source} models {old['sampler']!r}, not {name}'s sampler "
+                         f"{sampler!r}; its reference figures do not apply")
     rows = {}
     for n in sizes:
         row = old["rows"].get(str(n))
         if row is None:
-            raise SystemExit(f"error: {name} has no kept row at n = {n} to take the reference "
-                             "figures from; measure it without --stored-reference")
+            raise SystemExit(f"error: {source} has no kept row at n = {n} to take the "
+                             "reference figures from; measure it without --stored-reference")
         row["spec_ref"] = np.asarray(row["spec_ref"])
         # the run that drew the references: a row may itself be kept (--merge) or stored
         ran = (row.get("reference") or row.get("measured")
                or {"date": old["date"], "settings": old["settings"]})
         row["reference"] = {k: ran[k] for k in ("date", "settings")}
+        if "model" in ran or source != name:
+            row["reference"]["model"] = ran.get("model", source)
         rows[n] = row
     return rows
 
@@ -229,8 +239,9 @@ def evaluate(pool, name: str, a) -> dict:
            "model_sha256": model_hash(name), "settings": settings(a, sampler),
            "date": dt.date.today().isoformat()}
     # solver_sweep passes its own namespace, without the option
-    stored = (stored_reference(a.out, name, a.sizes)
-              if getattr(a, "stored_reference", False) else None)
+    source = getattr(a, "stored_reference", None)
+    stored = (stored_reference(a.out, name, a.sizes, sampler,
+                               None if source is True else source) if source else None)
     for n in a.sizes:
         if stored:
             res["rows"][n] = against_stored(pool, model, n, a, stored[n],
@@ -378,8 +389,9 @@ def settings(a, sampler: str) -> dict:
     """The run's options as kept with a result of a model of ``sampler``."""
     out = {"sets": a.sets, "slow_sets": a.slow_sets, "slow_4096": a.slow_4096,
            "spectrum_sets": a.spectrum_sets, "gen_sets": a.gen_sets, "seed": a.seed}
-    if getattr(a, "stored_reference", False):
-        out["stored_reference"] = True
+    source = getattr(a, "stored_reference", None)
+    if source:
+        out["stored_reference"] = source  # True: the model's own kept run
     # only this sampler's pools: another model's run need not repeat them
     pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
              for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
@@ -575,14 +587,15 @@ def _taken_over(r: dict) -> list[str]:
 
 def _stored_note(r: dict) -> list[str]:
     """A note on rows measured against stored reference figures (``--stored-reference``)."""
-    by_run: dict[str, list[int]] = {}
+    by_run: dict[tuple[str, str], list[int]] = {}
     for n, row in r["rows"].items():
         if "reference" in row:
-            by_run.setdefault(row["reference"]["date"], []).append(n)
+            ref = row["reference"]
+            by_run.setdefault((ref.get("model", ""), ref["date"]), []).append(n)
     if not by_run:
         return []
-    runs = "; ".join(f"n = {', '.join(map(str, ns))} from the run of {d}"
-                     for d, ns in sorted(by_run.items()))
+    runs = "; ".join(f"n = {', '.join(map(str, ns))} from " + (m + "'s" if m else "the")
+                     + f" run of {d}" for (m, d), ns in sorted(by_run.items()))
     return ["", f"Reference side stored (`--stored-reference`): {runs}. The generated sets "
             "were made and measured anew against that run's kept reference figures (mean "
             "spectrum, per-set statistics of batch A, floors, time per set); the example "
@@ -620,6 +633,13 @@ def _spacing_text(spec: float | dict) -> str:
     return f"{spec:g} / sqrt(n)"
 
 
+def _stored_option(source: bool | str | None) -> str:
+    """The ``--stored-reference`` option as a run kept it (True: the model's own run)."""
+    if not source:
+        return ""
+    return " --stored-reference" + ("" if source is True else f" {source}")
+
+
 def report(results: list[dict], missing: list[str], out: Path) -> None:
     runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results}
                   | {(row[k]["date"], json.dumps(row[k]["settings"], sort_keys=True))
@@ -630,7 +650,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
         + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "")
         + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", []))
-        + (" --stored-reference" if st.get("stored_reference") else "") + f"` on {d}"
+        + _stored_option(st.get("stored_reference")) + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
@@ -784,9 +804,10 @@ def main() -> None:
                    help="keep the model's earlier rows at the sizes not given, where the "
                         "current file reproduces their sets (e.g. after a re-export that "
                         "only changes big grids)")
-    p.add_argument("--stored-reference", action="store_true",
+    p.add_argument("--stored-reference", nargs="?", const=True, default=None, metavar="MODEL",
                    help="measure the generated sets against the reference figures kept "
-                        "from the model's last run (its fidelity/<model>.json), when the "
+                        "from the model's last run (its fidelity/<model>.json), or from "
+                        "MODEL's (same sampler, e.g. a new student's teacher), when the "
                         "reference sets are not at hand (e.g. after a card change)")
     p.add_argument("--report-only", action="store_true",
                    help="only rebuild fidelity.md from the kept per-model results")

@@ -89,6 +89,24 @@ def test_fidelity_against_stored_reference_figures(tmp_path):
     res = subprocess.run(run + ["--sizes", "64", "256", "--stored-reference"],
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode != 0 and "sobol_owen has no kept row at n = 256" in res.stderr
+    # a new model of the same sampler (a student) against another model's kept reference
+    other = [a if a != "sobol_owen" else "sobol_owen_fast" for a in cmd]
+    res = subprocess.run(other + ["--stored-reference", "sobol_owen"], capture_output=True,
+                         text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    row = json.loads((tmp_path / "out" / "fidelity" / "sobol_owen_fast.json").read_text())
+    row = row["rows"]["64"]
+    assert row["reference"]["model"] == "sobol_owen"
+    assert row["floor"] == before["floor"] and row["count"] == before["count"]
+    assert row["gauss_mse"]["ref_sets"] == before["gauss_mse"]["ref_sets"]
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "n = 64 from sobol_owen's run of" in md
+    assert " --stored-reference sobol_owen` on " in md
+    res = subprocess.run([a if a != "sobol_owen" else "ldbn" for a in cmd]
+                         + ["--stored-reference", "sobol_owen"], capture_output=True,
+                         text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode != 0
+    assert "sobol_owen models 'sobol_owen', not ldbn's sampler 'ldbn'" in res.stderr
 
 
 def test_post_processing_projections_reach_and_keep_the_structure():
