@@ -36,7 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.common import FLOAT_DIR, float_source  # noqa: E402
-from benchmarks.fidelity import STATS, TOL_MEAN, TOL_MIND, set_stats  # noqa: E402
+from benchmarks.fidelity import (STATS, TOL_MEAN, TOL_MIND, set_stats,  # noqa: E402
+                                 tolerance)
 from benchmarks.ort_tuning import ms_per_set, plain  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
@@ -65,8 +66,7 @@ def rows_at(pool, fmodel, qmodel, n: int, sets: int) -> list[str]:
     for label, x in (("float, other noise (floor)", b), ("**8-bit, same noise**", q)):
         st = set_stats(pool, x)
         moved = np.median(np.linalg.norm(x - a, axis=-1)) * np.sqrt(n)
-        cells = " | ".join(rel(st[k].mean(), base[k], TOL_MIND if k == "min_distance"
-                               else TOL_MEAN) for k in STATS)
+        cells = " | ".join(rel(st[k].mean(), base[k], tolerance(k)) for k in STATS)
         lines.append(f"| {n} ({sets}) | {label} | {spectrum_mae(radial_spectrum(x)[1], spec):.4f} | "
                      f"{cells} | {moved:.3f} |")
         print(lines[-1], flush=True)

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import (STATS, TOL_MEAN, TOL_MIND, reference,  # noqa: E402
-                                 set_stats)
+                                 set_stats, tolerance)
 from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
@@ -103,8 +103,8 @@ def table(rows: list[dict]) -> list[str]:
     lines = ["| setting | spectrum MAE | " + " | ".join(STATS) + " | ms/set |",
              "|---|---|" + "---|" * len(STATS) + "---|"]
     for r in rows:
-        cells = [f"{100 * r[k]:+.1f} %" + (" ✗" if abs(r[k]) > (
-            TOL_MIND if k == "min_distance" else TOL_MEAN) else "") for k in STATS]
+        cells = [f"{100 * r[k]:+.1f} %" + (" ✗" if abs(r[k]) > tolerance(k) else "")
+                 for k in STATS]
         lines.append(f"| {r['setting']} | {r['mae']:.4f} | " + " | ".join(cells)
                      + f" | {r['ms']:.0f} |")
     return lines
