@@ -46,6 +46,8 @@ from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E40
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
                                seed_curve)
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
+from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
+from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
 from trainer.samplers import SLOW, sample  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.density import OLD_FLOOR  # noqa: E402
@@ -556,9 +558,9 @@ def model_card_text(c: dict) -> str:
                f"{describe_coarse(c['coarse_noise'])} (diffsampler_rt.coarse_noise)"
                if c.get("coarse_noise") else "")
             + _structure_text(c)
-            + (f"; then {_sliced_text(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
+            + (f"; then sliced-OT {describe_sliced(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
                if c.get("sliced_ot") else "")
-            + (f"; pairs closer than {_spacing_text(c['min_spacing'])} pushed apart "
+            + (f"; pairs closer than {describe_spacing(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 
 
@@ -617,20 +619,6 @@ def _structure_text(c: dict) -> str:
              "steps" if c.get("structure_guidance") else "")
     return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide} "
             "(diffsampler_rt.structure)")
-
-
-def _sliced_text(spec: dict) -> str:
-    its = (", ".join(f"{k} at n = {n}" for n, k in zip(spec["n"], spec["iterations"]))
-           + " (log-linear, rounded)" if "n" in spec else str(spec["iterations"]))
-    step = f", each move scaled by {spec['step']:g}" if spec.get("step", 1) != 1 else ""
-    return f"sliced-OT iterations of {spec['directions']} directions: {its}{step}"
-
-
-def _spacing_text(spec: float | dict) -> str:
-    if isinstance(spec, dict):
-        return ("c / sqrt(n), c = " + ", ".join(f"{c:g} at n = {n}" for n, c in
-                                                zip(spec["n"], spec["c"])) + " (log-linear)")
-    return f"{spec:g} / sqrt(n)"
 
 
 def _stored_option(source: bool | str | None) -> str:

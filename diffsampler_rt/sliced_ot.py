@@ -200,6 +200,21 @@ def iterations_at(spec: dict, n: int) -> int:
     return int(spec["iterations"])
 
 
+def describe(spec: dict | None) -> str:
+    """The card value in words: "none", "8 iterations of 128 directions", or
+    "0 / 8 / 10 iterations at n = 256 / 1024 / 4096 (log-linear, rounded) of 128
+    directions", with ", each move scaled by 1.5" where the card sets a step."""
+    if not spec:
+        return "none"
+    if "n" in spec:
+        its = (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
+               + " / ".join(map(str, spec["n"])) + " (log-linear, rounded)")
+    else:
+        its = f"{spec['iterations']} iterations"
+    step = f", each move scaled by {spec['step']:g}" if spec.get("step", 1) != 1 else ""
+    return f"{its} of {spec['directions']} directions{step}"
+
+
 def _step_ok(v) -> bool:
     return (not isinstance(v, bool) and isinstance(v, (int, float)) and np.isfinite(v)
             and 0 < v <= MAX_STEP)

@@ -40,6 +40,17 @@ def coefficient(spec: float | dict, n: int) -> float:
     return float(spec)
 
 
+def describe(spec: float | dict | None) -> str:
+    """The card value in words: "none", "0.6432 / sqrt(n)", or "c / sqrt(n), c = 0.66 at
+    n = 64, 0.58 at n = 1024 (log-linear)"."""
+    if spec is None:
+        return "none"
+    if isinstance(spec, dict):
+        return ("c / sqrt(n), c = " + ", ".join(f"{c:g} at n = {n}" for n, c in
+                                                zip(spec["n"], spec["c"])) + " (log-linear)")
+    return f"{spec:g} / sqrt(n)"
+
+
 def radius(card: dict, n: int) -> float | None:
     """The spacing radius the card asks for at n points (None: the card asks for none)."""
     spec = card.get("min_spacing")

@@ -112,6 +112,8 @@ def set_defaults_main(argv: list[str]) -> int:
     if _missing(args.model):
         return 2
     from diffsampler_rt.coarse_noise import describe as describe_coarse
+    from diffsampler_rt.sliced_ot import describe as describe_sliced
+    from diffsampler_rt.spacing import describe as describe_spacing
 
     from .defaults import set_defaults
     try:
@@ -126,8 +128,8 @@ def set_defaults_main(argv: list[str]) -> int:
         return 2
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
           f"{card['default_steps']} steps, structure {structure_text(card)}, "
-          f"sliced OT {sliced_text(card.get('sliced_ot'))}, "
-          f"min spacing {format_spacing(card.get('min_spacing'))}, "
+          f"sliced OT {describe_sliced(card.get('sliced_ot'))}, "
+          f"min spacing {describe_spacing(card.get('min_spacing'))}, "
           f"coarse noise {describe_coarse(card.get('coarse_noise'))}")
     return 0
 
@@ -142,18 +144,6 @@ def structure_text(card: dict) -> str:
     if card.get("structure_guidance"):
         notes.append(f"guiding {card['structure_guidance']} steps")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
-
-
-def sliced_text(spec: dict | None) -> str:
-    """"none", "8 iterations x 64 directions", "0 / 8 / 16 iterations at n = 256 / ..."."""
-    if not spec:
-        return "none"
-    if "n" in spec:
-        text = (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
-                + " / ".join(map(str, spec["n"])) + f" x {spec['directions']} directions")
-    else:
-        text = f"{spec['iterations']} iterations x {spec['directions']} directions"
-    return text + (f", step {spec['step']:g}" if "step" in spec else "")
 
 
 def _table_arg(text: str, key: str, value, flag: str, one: str, pairs: str):
@@ -184,12 +174,6 @@ def _whole(text: str) -> int:
     if not v.is_integer():
         raise ValueError(text)
     return int(v)
-
-
-def format_spacing(spec: float | dict | None) -> str:
-    if isinstance(spec, dict):
-        return ",".join(f"{n}:{c:g}" for n, c in zip(spec["n"], spec["c"]))
-    return "none" if spec is None else f"{spec:g}"
 
 
 def density_floor_main(argv: list[str]) -> int:

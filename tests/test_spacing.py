@@ -145,10 +145,11 @@ def test_set_defaults_cli_min_spacing(tiny_onnx, tmp_path, capsys):
         in capsys.readouterr().err
     assert main(["set-defaults", str(path), "--min-spacing", "64:0.7:1"]) == 2
     assert main(["set-defaults", str(path), "--min-spacing", "0.6"]) == 0
-    assert "min spacing 0.6" in capsys.readouterr().out
+    assert "min spacing 0.6 / sqrt(n)" in capsys.readouterr().out
     assert diffsampler_rt.Model(path).card["min_spacing"] == 0.6
     assert main(["set-defaults", str(path), "--min-spacing", "64:0.7,1024:0.6"]) == 0
-    assert "min spacing 64:0.7,1024:0.6" in capsys.readouterr().out
+    assert ("min spacing c / sqrt(n), c = 0.7 at n = 64, 0.6 at n = 1024 (log-linear)"
+            in capsys.readouterr().out)
     assert diffsampler_rt.Model(path).card["min_spacing"] == {"n": [64, 1024], "c": [0.7, 0.6]}
     assert main(["set-defaults", str(path), "--min-spacing", "1024:0.7,64:0.6"]) == 2
     assert "n must be increasing positive integers" in capsys.readouterr().err
