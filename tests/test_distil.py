@@ -147,6 +147,42 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
         m.generate(16, seed=0, steps=5)
 
 
+def test_a_non_uniform_teachers_student_maps_its_sets_with_the_teachers_table(
+        tiny_onnx, tmp_path, monkeypatch):
+    import shutil
+    from dataclasses import replace
+
+    from export.defaults import edit_card
+    from export.onnx_export import export_checkpoint
+    from trainer.density import fit_density
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    teacher = tmp_path / "tiny_ramp.onnx"
+    shutil.copy(tiny_onnx, teacher)
+    ramp = np.sqrt(np.random.default_rng(0).random((4000, 2)))  # density 4xy
+    table = fit_density(ramp, 8, floor=1e-6)
+
+    def non_uniform(card: dict) -> None:  # as after `python -m export density-floor`
+        card.update(density=table, density_floor=1e-6)
+
+    edit_card(teacher, non_uniform)
+    cfg = DistilConfig(teacher=str(teacher), name="tiny_ramp_fast", student_steps=2,
+                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
+                       trajectories=(6, 4), batch_sizes=(3, 2), steps=1, warmup_steps=1,
+                       attention_window=2, lr=1e-3)
+    out, _ = export_checkpoint(Distiller(cfg, tmp_path / "run", progress=False).run(),
+                               tmp_path / "tiny_ramp_fast.onnx", parity_sides=(8,))
+    card = diffsampler_rt.Model(out).card
+    assert card["density"] == table and card["density_floor"] == 1e-6
+    assert card["config"]["data"]["density_floor"] == 1e-6
+    pts = diffsampler_rt.generate(out, 1024, seed=0)
+    # mapped to the density 4xy (mean 2/3 on each axis), not left uniform (mean 1/2)
+    assert np.all(np.abs(pts.mean(axis=0) - 2 / 3) < 0.05)
+    # a uniform teacher's student has no table
+    plain = replace(cfg, teacher=str(tiny_onnx), name="tiny_fast")
+    assert Distiller(plain, tmp_path / "plain", progress=False).state()["density"] is None
+
+
 def test_a_later_stage_starts_from_the_earlier_student(tiny_onnx, tmp_path, monkeypatch):
     from dataclasses import replace
     from export.onnx_export import export_checkpoint

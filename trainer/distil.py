@@ -34,6 +34,7 @@ from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
 from .data import cache_dir
+from .density import OLD_FLOOR
 from .train import load_checkpoint, optimiser_step, run_loop, save_checkpoint
 from .unet import UNet
 from .warm_start import net_from_onnx
@@ -267,9 +268,15 @@ class Distiller:
         return net
 
     def student_config(self):
-        """The teacher's training config, renamed, with the student's sampling defaults."""
+        """The teacher's training config, renamed, with the student's sampling defaults (and
+        a non-uniform teacher's density floor as its card has it now: the student maps its
+        sets back with the teacher's table)."""
+        data = self.teacher_cfg.data
+        if "density" in self.teacher_card:
+            data = replace(data, density_floor=self.teacher_card.get("density_floor",
+                                                                     OLD_FLOOR))
         return replace(self.teacher_cfg, name=self.cfg.name, default_solver="ddim",
-                       default_sample_steps=self.cfg.student_steps,
+                       default_sample_steps=self.cfg.student_steps, data=data,
                        unet=replace(self.teacher_cfg.unet,
                                     attention_window=self.cfg.attention_window))
 
@@ -296,6 +303,8 @@ class Distiller:
                 "train_seconds": self.teacher_card.get("train_seconds"),
                 "devices": self.teacher_card.get("train_devices", ["cpu"]),
                 "card_extra": {"distillation": distillation, "provenance": provenance},
+                # a non-uniform teacher's table (None: uniform), which the export puts in the card
+                "density": self.teacher_card.get("density"),
                 "model": self.model.state_dict(), "ema": self.ema.state_dict(),
                 "opt": self.opt.state_dict(), "torch_gen": self.gen.get_state(),
                 "student_devices": self.devices}
