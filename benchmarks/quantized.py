@@ -7,7 +7,8 @@ draw of the float model changes) and of the quantised model from noise A. Column
 radial-spectrum MAE to the float model's noise-A sets, the relative differences of the
 means of the fidelity report's per-set statistics, and how far the quantised model moves
 each point from where the float model put it (same noise; median over points, in units of
-the mean spacing 1/sqrt(n)). With ``--timing-only`` (on an otherwise idle machine): one
+the mean spacing 1/sqrt(n)). Non-uniform models are measured in the uniform square (after
+the exact unwarping), as in the fidelity report. With ``--timing-only`` (on an otherwise idle machine): one
 denoiser evaluation at k = 32 (batch 32) and ``generate`` at n = 1024 (batched and alone),
 float and quantised alternated, each measured in a fresh process. The reference sampler is not run here: the
 fidelity report measures the bundled (quantised) file against it. Writes
@@ -39,6 +40,7 @@ from benchmarks.common import FLOAT_DIR, float_source  # noqa: E402
 from benchmarks.fidelity import (STATS, TOL_MEAN, TOL_MIND, set_stats,  # noqa: E402
                                  tolerance)
 from benchmarks.ort_tuning import ms_per_set, plain  # noqa: E402
+from trainer.samplers.densities import UNWARP  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 LABELS = {"ot_energy": "OT energy", "l2_star": "L2*", "gauss_mse": "Gauss MSE",
@@ -57,9 +59,11 @@ def rel(value: float, base: float, tol: float) -> str:
 
 
 def rows_at(pool, fmodel, qmodel, n: int, sets: int) -> list[str]:
-    a = fmodel.generate(n, sets, seed=1)
-    b = fmodel.generate(n, sets, seed=2)
-    q = qmodel.generate(n, sets, seed=1)
+    # non-uniform models: in the uniform square, as the fidelity report measures them (the
+    # integration errors of the mapped sets are their density's, the same for every draw)
+    unwarp = UNWARP.get(fmodel.card["sampler"], lambda p: p)
+    a, b, q = (unwarp(m.generate(n, sets, seed=s))
+               for m, s in ((fmodel, 1), (fmodel, 2), (qmodel, 1)))
     spec = radial_spectrum(a)[1]
     base = {k: v.mean() for k, v in set_stats(pool, a).items()}
     lines = []
