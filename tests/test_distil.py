@@ -18,6 +18,14 @@ from trainer.warm_start import net_from_onnx  # noqa: E402
 from .conftest import TINY_ONNX_UNET, tiny_config  # noqa: E402
 
 
+def tiny_distil(teacher, **changes) -> DistilConfig:
+    """A distillation of a tiny teacher small enough for a test (a few seconds)."""
+    return DistilConfig(**{"teacher": str(teacher), "name": "tiny_fast", "student_steps": 2,
+                           "teacher_steps": 4, "teacher_solver": "ddim", "sizes": (4, 8),
+                           "trajectories": (6, 4), "batch_sizes": (3, 2), "steps": 2,
+                           "warmup_steps": 1, "attention_window": 2, "lr": 1e-3, **changes})
+
+
 def test_net_from_onnx_recovers_every_weight(tiny_onnx):
     # the fixture keeps the exported net's state dict next to the file
     ref = torch.load(tiny_onnx.with_suffix(".state"))
@@ -105,11 +113,7 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
     from export.onnx_export import export_checkpoint
 
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
-    cfg = DistilConfig(teacher=str(tiny_onnx), name="tiny_fast", student_steps=2,
-                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
-                       trajectories=(6, 4), batch_sizes=(3, 2), steps=3, warmup_steps=1,
-                       attention_window=2,
-                       lr=1e-3, log_every=1)
+    cfg = tiny_distil(tiny_onnx, steps=3, log_every=1)
     d = Distiller(cfg, tmp_path / "run", progress=False)
     # the card's training figures are the teacher's: say it trained on a GPU
     d.teacher_card = {**d.teacher_card, "train_seconds": 60, "train_devices": ["cuda"]}
@@ -150,7 +154,6 @@ def test_distil_run_exports_a_student_with_its_record(tiny_onnx, tmp_path, monke
 def test_a_non_uniform_teachers_student_maps_its_sets_with_the_teachers_table(
         tiny_onnx, tmp_path, monkeypatch):
     import shutil
-    from dataclasses import replace
 
     from export.defaults import edit_card
     from export.onnx_export import export_checkpoint
@@ -166,10 +169,7 @@ def test_a_non_uniform_teachers_student_maps_its_sets_with_the_teachers_table(
         card.update(density=table, density_floor=1e-6)
 
     edit_card(teacher, non_uniform)
-    cfg = DistilConfig(teacher=str(teacher), name="tiny_ramp_fast", student_steps=2,
-                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
-                       trajectories=(6, 4), batch_sizes=(3, 2), steps=1, warmup_steps=1,
-                       attention_window=2, lr=1e-3)
+    cfg = tiny_distil(teacher, name="tiny_ramp_fast", steps=1)
     out, _ = export_checkpoint(Distiller(cfg, tmp_path / "run", progress=False).run(),
                                tmp_path / "tiny_ramp_fast.onnx", parity_sides=(8,))
     card = diffsampler_rt.Model(out).card
@@ -179,7 +179,7 @@ def test_a_non_uniform_teachers_student_maps_its_sets_with_the_teachers_table(
     # mapped to the density 4xy (mean 2/3 on each axis), not left uniform (mean 1/2)
     assert np.all(np.abs(pts.mean(axis=0) - 2 / 3) < 0.05)
     # a uniform teacher's student has no table
-    plain = replace(cfg, teacher=str(tiny_onnx), name="tiny_fast")
+    plain = tiny_distil(tiny_onnx, steps=1)
     assert Distiller(plain, tmp_path / "plain", progress=False).state()["density"] is None
 
 
@@ -188,10 +188,7 @@ def test_a_later_stage_starts_from_the_earlier_student(tiny_onnx, tmp_path, monk
     from export.onnx_export import export_checkpoint
 
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
-    cfg = DistilConfig(teacher=str(tiny_onnx), name="tiny_fast", student_steps=2,
-                       teacher_steps=4, teacher_solver="ddim", sizes=(4, 8),
-                       trajectories=(6, 4), batch_sizes=(3, 2), steps=2, warmup_steps=1,
-                       attention_window=2, lr=1e-3)
+    cfg = tiny_distil(tiny_onnx)
     first, _ = export_checkpoint(Distiller(cfg, tmp_path / "one", progress=False).run(),
                                  tmp_path / "one.onnx", parity_sides=(8,))
     later = replace(cfg, init_from=str(first), steps=1, seed=1)
