@@ -14,6 +14,7 @@ that), so one command makes both figures the README shows.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from trainer.samplers import sample  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
 
 
+@functools.lru_cache(maxsize=None)  # models of one sampler (a student, its teacher) share them
 def reference_sets(sampler: str, n: int, count: int) -> np.ndarray:
     """Up to ``count`` reference sets: the smallest cached batch (seed 1) holding ``count``,
     else the largest cached one (slow samplers: fewer sets, the figure says how many), else

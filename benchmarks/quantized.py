@@ -8,10 +8,11 @@ radial-spectrum MAE to the float model's noise-A sets, the relative differences 
 means of the fidelity report's per-set statistics, and how far the quantised model moves
 each point from where the float model put it (same noise; median over points, in units of
 the mean spacing 1/sqrt(n)). Non-uniform models are measured in the uniform square (after
-the exact unwarping), as in the fidelity report. With ``--timing-only`` (on an otherwise idle machine): one
-denoiser evaluation at k = 32 (batch 32) and ``generate`` at n = 1024 (batched and alone),
-float and quantised alternated, each measured in a fresh process. The reference sampler is not run here: the
-fidelity report measures the bundled (quantised) file against it. Writes
+the exact unwarping), as in the fidelity report. With ``--timing-only`` (on an otherwise
+idle machine): one denoiser evaluation at k = 32 (batch 32) and ``generate`` at n = 1024
+(batched and alone), float and quantised alternated, each measured in a fresh process. The
+reference sampler is not run here: the fidelity report measures the bundled (quantised)
+file against it. Writes
 benchmarks/results/quantized.md (each model's section, and the timing table, kept in
 benchmarks/results/quantized/).
 

@@ -150,7 +150,8 @@ def test_card_polish_step(tiny_onnx, tmp_path, capsys):
     capsys.readouterr()
     assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
                         "1.5"]) == 0
-    assert "sliced OT 4 iterations of 64 directions, each move scaled by 1.5" in capsys.readouterr().out
+    assert ("sliced OT 4 iterations of 64 directions, each move scaled by 1.5"
+            in capsys.readouterr().out)
     m = diffsampler_rt.Model(path)
     assert m.card["sliced_ot"] == {"directions": 64, "iterations": 4, "step": 1.5}
     relaxed = m.generate(256, 2, seed=3)

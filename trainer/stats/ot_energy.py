@@ -137,8 +137,8 @@ def _ot_energy_one(x: np.ndarray, tol: float, max_iter: int) -> float:
             alpha /= 2
         w, area, moment, edges, err = w_new, a2, m2, e2, e_new
     if err > tol * target:
-        # the error is relative to the cells' area 1/n: at 1e-8 of it the energy is exact to
-        # far more digits than any comparison needs, but say that the tolerance was missed
+        # relative to the cell area 1/n, so that a near miss (1e-8: rounding, the energy
+        # still exact to many digits) reads apart from a failed solve (order 1 or more)
         warnings.warn(f"semi-discrete OT stopped after {max_iter} Newton steps: max cell-area "
                       f"error {err / target:.2g} of the cell area 1/n (tolerance {tol:.2g})",
                       RuntimeWarning, stacklevel=3)
