@@ -35,11 +35,11 @@ from diffsampler_rt.solvers import SOLVERS, solve
 
 from .data import cache_dir
 from .density import OLD_FLOOR
-from .train import load_checkpoint, optimiser_step, run_loop, save_checkpoint
+from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
+                    run_loop, save_checkpoint)
 from .unet import UNet
 from .warm_start import net_from_onnx
 
-CHECKPOINT = "checkpoint.pt"
 LOSS_WEIGHTINGS = ("snr", "truncated_snr")
 
 
@@ -310,16 +310,8 @@ class Distiller:
                 "student_devices": self.devices}
 
     def _restore(self, st: dict[str, Any]) -> None:
-        if st.get("distil_config") != self.cfg.to_dict():
-            raise ValueError(f"{self.run_dir / CHECKPOINT} was written by a different config; "
-                             "use a new run directory")
-        self.model.load_state_dict(st["model"])
-        self.ema.load_state_dict(st["ema"])
-        self.opt.load_state_dict(st["opt"])
-        self.gen.set_state(st["torch_gen"])
-        self.step = st["step"]
-        self.elapsed = st["elapsed_s"]
-        self.devices = sorted(set(st.get("student_devices", ["cpu"])) | {self.device.type})
+        restore_state(self, st, same_config=st.get("distil_config") == self.cfg.to_dict(),
+                      devices=st.get("student_devices", ["cpu"]))
 
     def save(self) -> Path:
         path = self.run_dir / CHECKPOINT

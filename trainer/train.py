@@ -119,17 +119,9 @@ class Trainer:
                 "density": self.batches.density}
 
     def _restore(self, st: dict[str, Any]) -> None:
-        if st["config"] != self.cfg.to_dict():
-            raise ValueError(f"{self.run_dir / CHECKPOINT} was written by a different config; "
-                             "use a new run directory")
-        self.model.load_state_dict(st["model"])
-        self.ema.load_state_dict(st["ema"])
-        self.opt.load_state_dict(st["opt"])
+        restore_state(self, st, same_config=st["config"] == self.cfg.to_dict(),
+                      devices=st.get("devices", ["cpu"]))
         self.rng.bit_generator.state = st["rng"]
-        self.gen.set_state(st["torch_gen"])
-        self.step = st["step"]
-        self.elapsed = st["elapsed_s"]
-        self.devices = sorted(set(st.get("devices", ["cpu"])) | {self.device.type})
 
     def save(self) -> Path:
         path = self.run_dir / CHECKPOINT
@@ -151,6 +143,23 @@ class Trainer:
         """Train to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
         return run_loop(self, sizes=self.cfg.data.sizes, desc=self.cfg.name,
                         until_step=until_step, max_seconds=max_seconds)
+
+
+def restore_state(runner: Any, st: dict[str, Any], *, same_config: bool,
+                  devices: list[str]) -> None:
+    """Resume :class:`Trainer` or :class:`trainer.distil.Distiller` from its checkpoint
+    ``st`` (written by the same config, else ValueError): weights, EMA, optimiser, torch
+    generator, step and time; ``devices``: where it ran before, joined by this one."""
+    if not same_config:
+        raise ValueError(f"{runner.run_dir / CHECKPOINT} was written by a different config; "
+                         "use a new run directory")
+    runner.model.load_state_dict(st["model"])
+    runner.ema.load_state_dict(st["ema"])
+    runner.opt.load_state_dict(st["opt"])
+    runner.gen.set_state(st["torch_gen"])
+    runner.step = st["step"]
+    runner.elapsed = st["elapsed_s"]
+    runner.devices = sorted(set(devices) | {runner.device.type})
 
 
 def optimiser_step(runner: Any, losses: Iterable[torch.Tensor]) -> list[float]:
