@@ -76,8 +76,8 @@ def describe(spec: dict | None) -> str:
     if not spec:
         return "none"
     if "n" in spec:
-        gain = ("gain " + " / ".join(f"{g:g}" for g in spec["gain"]) + " at n = "
-                + " / ".join(map(str, spec["n"])) + " (log-linear)")
+        gain = ("gain " + per_size.describe(spec["n"], [f"{g:g}" for g in spec["gain"]])
+                + " (log-linear)")
     else:
         gain = f"gain {spec['gain']:g}"
     return f"{gain} up to {spec['cut']:g} x Nyquist"

@@ -207,8 +207,8 @@ def describe(spec: dict | None) -> str:
     if not spec:
         return "none"
     if "n" in spec:
-        its = (" / ".join(map(str, spec["iterations"])) + " iterations at n = "
-               + " / ".join(map(str, spec["n"])) + " (log-linear, rounded)")
+        its = (per_size.describe(spec["n"], list(map(str, spec["iterations"])), "iterations")
+               + " (log-linear, rounded)")
     else:
         its = f"{spec['iterations']} iterations"
     step = f", each move scaled by {spec['step']:g}" if spec.get("step", 1) != 1 else ""
