@@ -156,11 +156,11 @@ def test_ot_energy_near_duplicate_points():
     twin = x.copy()
     twin[-1] = twin[-2]
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # these solves stopped short before the merge
+        warnings.simplefilter("error")  # the first stopped short before the merge
         e, e_twin, e_apart = ot_energy(x, max_iter=20), ot_energy(twin), ot_energy(apart)
     assert e == pytest.approx(e_twin, rel=1e-9)
     assert e == pytest.approx(e_apart, rel=1e-4)  # the pair 1e-4 apart: a small move
-    # a point hidden by a much larger weight of its neighbour: no cell, not the whole square
+    # a point whose weight is far below its neighbours' is hidden: no cell, not the whole square
     w = np.zeros(k * k)
     w[k * k // 2 + k // 2] = -1.0
     area, _, _ = _cells(x, w)
