@@ -150,7 +150,7 @@ def _ot_energy_one(x: np.ndarray, tol: float, max_iter: int) -> float:
         lost = reps[np.argmin(area)]
         others = reps[reps != lost]
         group[group == lost] = others[np.argmin(np.linalg.norm(x[others] - x[lost], axis=1))]
-    x = x[reps]
+    x, m = x[reps], len(reps)
     target = mass / n  # 1/n per point, k/n for k merged points
     err = np.abs(area - target).max()
     for _ in range(max_iter):
@@ -158,7 +158,6 @@ def _ot_energy_one(x: np.ndarray, tol: float, max_iter: int) -> float:
             break
         (i, j), L = np.array(list(edges.keys())).T, np.array(list(edges.values()))
         c = L / (2 * np.linalg.norm(x[i] - x[j], axis=1))
-        m = len(x)
         H = coo_matrix((np.concatenate([-c, -c, c, c]),
                         (np.concatenate([i, j, i, j]), np.concatenate([j, i, i, j]))),
                        shape=(m, m)).tocsr()
