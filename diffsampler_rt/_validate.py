@@ -17,30 +17,20 @@ def integer(name: str, value: object) -> int:
     return int(value)
 
 
-def nearest_squares(n: int) -> tuple[int, ...]:
-    """The valid sizes (perfect squares in range) closest to n, below and above."""
-    k = math.isqrt(max(n, 0))
-    below, above = k * k, (k + 1) ** 2
-    cands = [s for s in (below, above) if MIN_POINTS <= s <= MAX_POINTS]
-    if not cands:
-        cands = [MIN_POINTS] if n < MIN_POINTS else [MAX_POINTS]
-    return tuple(dict.fromkeys(cands))
-
-
 def num_points(n: object) -> int:
-    """n must be a perfect square in [16, MAX_POINTS]; returns the grid side k."""
+    """n must be an integer in [MIN_POINTS, MAX_POINTS]; returns the grid side
+    k = ceil(sqrt n) (n = k*k: the net's own size; otherwise k*k - n points are thinned
+    away, diffsampler_rt.elimination)."""
     n = integer("n", n)
     if n <= 0:
         raise ValueError(f"n must be positive, got {n}")
+    if n < MIN_POINTS:
+        raise ValueError(f"n={n} is too small: at least {MIN_POINTS} points per set (a 4 x 4 "
+                         "grid)")
     if n > MAX_POINTS:
         raise ValueError(f"n={n} is too large: at most {MAX_POINTS} points per set "
                          f"({math.isqrt(MAX_POINTS)}^2)")
-    k = math.isqrt(n)
-    if k * k != n or n < MIN_POINTS:
-        near = " or ".join(str(s) for s in nearest_squares(n))
-        raise ValueError(f"n={n} is not supported: n must be a perfect square >= {MIN_POINTS} "
-                         f"(k*k points on a k x k grid); nearest valid sizes: {near}")
-    return k
+    return math.isqrt(n - 1) + 1
 
 
 def count(value: object) -> int:

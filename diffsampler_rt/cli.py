@@ -114,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     g = sub.add_parser("generate", help="generate point sets")
     g.add_argument("model", help="bundled model name (see `diffsampler list`) or .onnx path")
-    g.add_argument("n", type=int, help="points per set: a perfect square >= 16")
+    g.add_argument("n", type=int, help="points per set, >= 16 (a perfect square k*k is the "
+                   "net's own size; other n are thinned from the next square)")
     g.add_argument("--count", type=int, default=None, help="number of sets (default 1)")
     g.add_argument("--seed", type=int, default=None)
     g.add_argument("--steps", type=int, default=None, help="denoising steps")

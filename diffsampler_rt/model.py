@@ -15,6 +15,7 @@ from ._progress import Progress
 from .card import CARD_KEY, parse_card
 from .coarse_noise import gain_at, shape_noise
 from .density import warp
+from .elimination import eliminate
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .metadata import WireFormatError, read_metadata
@@ -183,9 +184,9 @@ class Model:
         numpy.ndarray
             float64, shape (n, 2) or (count, n, 2), every point in [0, 1)^2.
         """
-        k = _validate.num_points(n)
+        _validate.num_points(n)
         c = 1 if count is None else _validate.count(count)
-        out = np.empty((c, k * k, 2))
+        out = np.empty((c, n, 2))
         start = 0
         for block in self.iter_sets(n, c, seed=seed, steps=steps, solver=solver,
                                     progress=progress, structure=structure):
@@ -229,21 +230,22 @@ class Model:
                 raise ValueError(f"batch must be >= 1, got {per_batch}")
         rng = _validate.rng(seed)
         # validated now; the sets are made as the caller iterates
+        # a structure belongs to the k x k set; the per-size settings go by the n kept
         imposed = bool(structure) and applies(self.card, k)
-        spacing = radius(self.card, k * k) if structure else None
+        spacing = radius(self.card, n) if structure else None
         polishing = self.card.get("sliced_ot") if structure else None
-        sliced = iterations_at(polishing, k * k) if polishing else 0
+        sliced = iterations_at(polishing, n) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
         shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
-        return self._blocks(k, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
+        return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
                             imposed, spacing, sliced, shaping)
 
-    def _blocks(self, k: int, c: int, per_batch: int, rng: np.random.Generator,
+    def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool,
                 spacing: float | None, sliced: int, shaping: tuple[float, float] | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
-        bar = Progress(c, f"{self.name} n={k * k}", enabled=progress)
+        bar = Progress(c, f"{self.name} n={n}", enabled=progress)
         density = self.card.get("density")
         # a net with circular padding makes sets on the torus: decoded modulo 1 and shifted
         # by a uniform random vector, so the set's seam is anywhere, as for the sampler
@@ -282,6 +284,8 @@ class Model:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
+            if n < k * k:  # n not a square: the k*k - n most crowded points go
+                pts = eliminate(pts, n, torus=toroidal)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))

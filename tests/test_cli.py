@@ -47,7 +47,7 @@ def test_list_and_info(capsys):
 
 
 @pytest.mark.parametrize("args,match", [
-    (["generate", "rank1", "17"], "nearest valid sizes: 16 or 25"),
+    (["generate", "rank1", "15"], "n=15 is too small"),
     (["generate", "rank1", "0"], "n must be positive"),
     (["generate", "rank1", "abc"], "invalid int value: 'abc'"),
     (["generate", "nosuchmodel", "64"], "unknown model 'nosuchmodel'"),

@@ -25,8 +25,8 @@ def test_plot_from_points(tmp_path):
 def test_plot_errors(tmp_path, capsys):
     assert main(["plot", "rank1", "-o", str(tmp_path / "x.png")]) == 2
     assert "needs N" in capsys.readouterr().err
-    assert main(["plot", "rank1", "63", "-o", str(tmp_path / "x.png")]) == 2
-    assert "perfect square" in capsys.readouterr().err
+    assert main(["plot", "rank1", "15", "-o", str(tmp_path / "x.png")]) == 2
+    assert "too small" in capsys.readouterr().err
     with pytest.raises(ValueError, match="shape"):
         plot_sets(np.zeros((4, 3)))
 

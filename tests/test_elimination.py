@@ -1,0 +1,101 @@
+"""Sets of any size: weighted sample elimination from the next square (diffsampler_rt.elimination)."""
+import doctest
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import elimination
+from diffsampler_rt.elimination import eliminate, hexagonal_spacing
+from trainer.stats import min_distance
+
+
+def brute_kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:
+    """Weighted sample elimination written out with the full distance matrix."""
+    d = p[:, None] - p[None]
+    if torus:
+        d -= np.round(d)
+    dist = np.sqrt((d ** 2).sum(-1))
+    reach = 2 * hexagonal_spacing(n)
+    w = np.where(dist < reach, (1 - np.minimum(dist, reach) / reach) ** 8, 0.0)
+    np.fill_diagonal(w, 0.0)
+    keep = np.ones(len(p), dtype=bool)
+    for _ in range(len(p) - n):
+        weight = np.where(keep, (w * keep[None, :]).sum(1), -np.inf)
+        keep[np.argmax(weight)] = False
+    return keep
+
+
+@pytest.mark.parametrize("m,n,torus", [(64, 50, False), (64, 50, True), (225, 200, False),
+                                       (100, 17, True), (36, 35, False)])
+def test_matches_the_algorithm_written_out(m, n, torus):
+    p = np.random.default_rng(m + n).random((m, 2))
+    kept = eliminate(p, n, torus=torus)
+    np.testing.assert_array_equal(kept, p[brute_kept(p, n, torus)])
+
+
+def test_shapes_order_batches_and_the_closest_pairs_going():
+    rng = np.random.default_rng(3)
+    sets = rng.random((3, 256, 2))
+    out = eliminate(sets, 230)
+    assert out.shape == (3, 230, 2)
+    for s, o in zip(sets, out):  # a subsequence of the input, each set on its own
+        np.testing.assert_array_equal(o, eliminate(s, 230))
+        pos = [int(np.flatnonzero((s == q).all(1))[0]) for q in o]
+        assert pos == sorted(pos)
+    # white noise thinned by 10 %: the crowded points go, the smallest distance grows
+    assert (min_distance(out) > 1.5 * min_distance(sets)).all()
+    same = eliminate(sets, 256)
+    np.testing.assert_array_equal(same, sets)
+    assert same is not sets
+
+
+def test_the_crowded_points_go_not_those_of_an_even_set():
+    # a 16 x 16 grid and 4 extra points, each crowding a grid point: each removed point is
+    # an extra or a grid point next to one, and no close pair is left
+    g = (np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2) + 0.5) / 16
+    extra = np.array([[0.2, 0.2], [0.7, 0.3], [0.4, 0.8], [0.9, 0.9]])
+    both = np.concatenate([g, extra])
+    kept = eliminate(both, 256)
+    gone = [q for q in both if not (kept == q).all(1).any()]
+    assert len(gone) == 4
+    assert all(np.linalg.norm(extra - q, axis=1).min() < 1 / 16 for q in gone)
+    assert min_distance(kept) > 0.7 / 16 > 2 * min_distance(both)
+
+
+@pytest.mark.parametrize("args,match", [
+    ((np.zeros((10, 2)), 11), r"n must be an integer in \[1, 10\].*got 11"),
+    ((np.zeros((10, 2)), 0), "got 0"),
+    ((np.zeros((10, 2)), 5.0), "got 5.0"),
+    ((np.zeros((10, 3)), 5), "shape"),
+])
+def test_bad_arguments(args, match):
+    with pytest.raises(ValueError, match=match):
+        eliminate(*args)
+
+
+@pytest.mark.parametrize("model", ["gbn_fast", "poisson_disk_torus_fast", "sot_fast",
+                                   "sobol_owen_fast", "rank1", "sot_ramp_fast"])
+@pytest.mark.parametrize("n", [17, 150])
+def test_any_n_gives_exactly_n_points_and_is_reproducible(model, n):
+    m = diffsampler_rt.load(model)
+    sets = m.generate(n, 3, seed=5)
+    assert sets.shape == (3, n, 2) and np.isfinite(sets).all()
+    assert ((sets >= 0) & (sets < 1)).all()
+    np.testing.assert_array_equal(sets[1], m.generate(n, 2, seed=5)[1])  # batching
+    one = m.generate(n, seed=7)
+    assert one.shape == (n, 2)
+    blocks = np.concatenate(list(m.iter_sets(n, 3, batch=2, seed=5)))
+    np.testing.assert_array_equal(blocks, sets)
+
+
+def test_blue_noise_keeps_its_spacing_at_any_n():
+    # the card's spacing radius at n = 1000 holds, as at the square sizes
+    m = diffsampler_rt.load("poisson_disk_fast")
+    sets = m.generate(1000, 4, seed=2)
+    c = m.card["min_spacing"]
+    assert (min_distance(sets) >= 0.99 * c / np.sqrt(1000)).all()
+
+
+def test_docstring_examples():
+    assert doctest.testmod(elimination).failed == 0
