@@ -18,6 +18,7 @@ from .density import warp
 from .elimination import eliminate
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
+from .lattice import nearest_rank1_lattice
 from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
@@ -230,18 +231,22 @@ class Model:
                 raise ValueError(f"batch must be >= 1, got {per_batch}")
         rng = _validate.rng(seed)
         # validated now; the sets are made as the caller iterates
-        # a structure belongs to the k x k set; the per-size settings go by the n kept
-        imposed = bool(structure) and applies(self.card, k)
+        # a structure belongs to the k x k set, except a lattice (one per n: at an n that is
+        # not a square, the thinned set is replaced by its nearest lattice of n points); the
+        # per-size settings go by the n kept
+        lattice = self.card.get("structure") == "rank1_lattice"
+        imposed = bool(structure) and applies(self.card, k) and (n == k * k or not lattice)
+        relattice = bool(structure) and lattice and n < k * k
         spacing = radius(self.card, n) if structure else None
         polishing = self.card.get("sliced_ot") if structure else None
         sliced = iterations_at(polishing, n) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
         shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, spacing, sliced, shaping)
+                            imposed, relattice, spacing, sliced, shaping)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
-                ts: np.ndarray, solver: str, progress: bool, imposed: bool,
+                ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int, shaping: tuple[float, float] | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
@@ -286,6 +291,8 @@ class Model:
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if n < k * k:  # n not a square: the k*k - n most crowded points go
                 pts = eliminate(pts, n, torus=toroidal)
+            if relattice:
+                pts = nearest_rank1_lattice(pts, sub)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))
