@@ -135,7 +135,12 @@ class Model:
         Parameters
         ----------
         n : int
-            Points per set: a perfect square >= 16 (k*k points on a k x k grid).
+            Points per set, 16 <= n <= 512*512. The net makes k*k points on a k x k grid;
+            for an n that is not a square, k = ceil(sqrt n) and the k*k - n most crowded
+            points are removed (weighted sample elimination,
+            :mod:`diffsampler_rt.elimination`) before the polish and spacing, which go by
+            n; a lattice model's thinned set is then replaced by its nearest rank-1 lattice
+            of n points (with ``structure``).
         count : int, optional
             Number of sets. ``None`` returns one set of shape (n, 2).
         seed : int or numpy.random.Generator, optional

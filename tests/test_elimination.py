@@ -99,3 +99,17 @@ def test_blue_noise_keeps_its_spacing_at_any_n():
 
 def test_docstring_examples():
     assert doctest.testmod(elimination).failed == 0
+
+
+def test_lattice_models_give_a_lattice_of_n_points_at_any_n():
+    # one lattice per n: the thinned set is replaced by its nearest rank-1 lattice of n points
+    from diffsampler_rt.lattice import fit_rank1_lattice, rank1_lattice
+    for model in ("rank1", "lattice"):
+        sets = diffsampler_rt.load(model).generate(50, 2, seed=3)
+        g, shift, _ = fit_rank1_lattice(sets)
+        for s, gi, si in zip(sets, g, shift):
+            exact = rank1_lattice(50, int(gi), si)
+            np.testing.assert_allclose(np.sort(s, axis=0), np.sort(exact, axis=0), atol=1e-9)
+        # without the structure: the thinned net's set, not a lattice
+        raw = diffsampler_rt.load(model).generate(50, seed=3, structure=False)
+        assert len(np.unique(np.round(raw[:, 0] * 50, 6) % 1)) > 1
