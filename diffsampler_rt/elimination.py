@@ -7,9 +7,17 @@ for Generating Poisson Disk Sample Sets"): every point carries the weight of its
 closer than 2 r, w(d) = (1 - d / 2r)^8 with r = sqrt(1 / (2 sqrt(3) n)) (the spacing of a
 hexagonal packing of n points), and the point of greatest weight, the most crowded one,
 goes first, its neighbours' weights lowered, until n are left. The removed points are the
-closest pairs' partners, so the minimum distance does not shrink; where one goes, its
-neighbours keep a gap of about one spacing, which the card's sliced-OT polish (SOT models)
-evens out and the minimum spacing leaves as it is.
+closest pairs' partners, so the minimum distance does not shrink.
+
+Each removed point leaves a hole, and the holes add power at every frequency, about
+(m - n) / n of white noise's: for samplers whose sets are very even at large scales (GBN,
+SOT, Sobol') that multiplies the error of integrating smooth functions (gbn at n = 1000, 24
+points removed from 1024: Gaussian MSE 4.6x the sampler's; at n = 200, 25 of 225: 6.5x).
+:func:`restore_low_frequencies` then moves the kept points by a smooth displacement field
+so that their density below ``cut`` sqrt(n) is again that of the set they were thinned from
+(one Poisson solve by FFT; on the torus for toroidal models, else mirrored, so that no
+point is pushed across an edge). The set's own large-scale character stays, which ever it
+was: Poisson-disk sets keep their white-noise-like low frequencies, GBN's stay near zero.
 
 Pure numpy, deterministic (ties go to the lowest index), one set at a time.
 """
@@ -23,6 +31,9 @@ from .spacing import close_pairs
 
 #: the weight's exponent (Yuksel's alpha)
 ALPHA = 8.0
+#: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
+#: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings)
+RESTORE_CUT = 0.25
 
 
 def hexagonal_spacing(n: int) -> float:
@@ -74,6 +85,26 @@ def eliminate(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
     return out[0] if single else out
 
 
+def thin(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
+    """:func:`eliminate` down to ``n`` points, then :func:`restore_low_frequencies` from each
+    set's full one: what the runtime does at an n that is not a square.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.elimination import thin
+    >>> thin(np.random.default_rng(0).random((2, 1024, 2)), 1000).shape
+    (2, 1000, 2)
+    """
+    full = np.asarray(points, dtype=np.float64)
+    kept = eliminate(full, n, torus=torus)
+    if kept.shape == full.shape:
+        return kept
+    if full.ndim == 2:
+        return restore_low_frequencies(kept, full, torus=torus)
+    return np.stack([restore_low_frequencies(k, f, torus=torus) for k, f in zip(kept, full)])
+
+
 def _kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:
     """Boolean mask of the n points of one set (m, 2) that elimination keeps."""
     m = len(p)
@@ -97,3 +128,71 @@ def _kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:
         sl = slice(at[a], at[a + 1])
         np.subtract.at(weight, nbr[sl], wt[sl])
     return keep
+
+
+def _deposit(p: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cloud-in-cell weights of points p (n, 2) in [0, 1)^2 on an m x m torus grid:
+    (grid, lower cell per point, fractional offsets)."""
+    f = p * m
+    base = np.floor(f).astype(np.int64)
+    w = f - base
+    grid = np.zeros(m * m)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
+            grid += np.bincount(((base[:, 0] + dx) % m) * m + (base[:, 1] + dy) % m, weight,
+                                minlength=m * m)
+    return grid.reshape(m, m), base, w
+
+
+def _mirrored(p: np.ndarray) -> np.ndarray:
+    """The four reflections of p into [0, 2)^2, scaled to [0, 1)^2: a set whose periodic
+    extension has no seam (displacements normal to the square's edges vanish there)."""
+    q = np.concatenate([p, p * [-1, 1] + [2, 0], p * [1, -1] + [0, 2], 2 - p])
+    return np.minimum(q / 2, np.nextafter(1.0, 0.0))
+
+
+def restore_low_frequencies(kept: np.ndarray, full: np.ndarray, *, torus: bool = False,
+                            cut: float = RESTORE_CUT) -> np.ndarray:
+    """Move the points ``kept`` (n, 2), thinned from ``full`` (m, 2), so that their density
+    below ``cut`` sqrt(n) cycles across the square is that of ``full``.
+
+    The density difference d (kept's minus full's, each normalised to one, low-passed) is
+    undone by the displacement u = grad psi with laplacian(psi) = d, to first order (the
+    continuity equation); psi comes from one FFT on a grid, u is interpolated at the points.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.elimination import eliminate, restore_low_frequencies
+    >>> full = np.random.default_rng(0).random((225, 2))
+    >>> kept = eliminate(full, 200)
+    >>> moved = restore_low_frequencies(kept, full)
+    >>> moved.shape, bool(np.all((moved >= 0) & (moved < 1)))
+    ((200, 2), True)
+    """
+    kept = np.asarray(kept, dtype=np.float64)
+    full = np.asarray(full, dtype=np.float64)
+    n = len(kept)
+    a, b = (kept, full) if torus else (_mirrored(kept), _mirrored(full))
+    scale = 1 if torus else 2  # the mirrored square is twice as wide: twice the frequencies
+    fc = scale * cut * math.sqrt(n)
+    m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
+    f = np.fft.fftfreq(m, 1.0 / m)
+    fx, fy = np.meshgrid(f, f, indexing="ij")
+    r2 = fx * fx + fy * fy
+    low = (r2 > 0) & (r2 < fc * fc)
+    taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
+    grid_a, base, w = _deposit(a, m)
+    diff = np.fft.fft2(grid_a) / len(a) - np.fft.fft2(_deposit(b, m)[0]) / len(b)
+    psi = np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
+    u = np.zeros_like(a)
+    for axis, freq in enumerate((fx, fy)):
+        field = np.real(np.fft.ifft2(2j * np.pi * freq * psi)) * m * m
+        for dx in (0, 1):
+            for dy in (0, 1):
+                weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
+                u[:, axis] += weight * field[(base[:, 0] + dx) % m, (base[:, 1] + dy) % m]
+    if torus:
+        return np.minimum((kept + u) % 1.0, np.nextafter(1.0, 0.0))
+    return np.clip(2 * (a + u)[:n], 0.0, np.nextafter(1.0, 0.0))  # the unreflected copy

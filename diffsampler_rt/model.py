@@ -15,7 +15,7 @@ from ._progress import Progress
 from .card import CARD_KEY, parse_card
 from .coarse_noise import gain_at, shape_noise
 from .density import warp
-from .elimination import eliminate
+from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .lattice import nearest_rank1_lattice
@@ -294,10 +294,10 @@ class Model:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
-            if n < k * k:  # n not a square: the k*k - n most crowded points go
-                pts = eliminate(pts, n, torus=toroidal)
-            if relattice:
-                pts = nearest_rank1_lattice(pts, sub)
+            if relattice:  # n not a square: the thinned set's nearest lattice of n points
+                pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
+            elif n < k * k:  # the k*k - n most crowded points go, the large scales restored
+                pts = thin(pts, n, torus=toroidal)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))

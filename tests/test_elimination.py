@@ -113,3 +113,42 @@ def test_lattice_models_give_a_lattice_of_n_points_at_any_n():
         # without the structure: the thinned net's set, not a lattice
         raw = diffsampler_rt.load(model).generate(50, seed=3, structure=False)
         assert len(np.unique(np.round(raw[:, 0] * 50, 6) % 1)) > 1
+
+
+def low_power(p: np.ndarray, cut: float = 0.25) -> float:
+    """Mean |sum_j exp(-2 pi i f . x_j)|^2 / n over integer 0 < |f| < cut sqrt(n)."""
+    fc = cut * np.sqrt(len(p))
+    f = np.arange(-int(fc), int(fc) + 1)
+    fx, fy = np.meshgrid(f, f)
+    keep = (fx ** 2 + fy ** 2 > 0) & (fx ** 2 + fy ** 2 < fc * fc)
+    fr = np.stack([fx[keep], fy[keep]], 1)
+    s = np.exp(-2j * np.pi * p @ fr.T).sum(0)
+    return float(np.mean(np.abs(s) ** 2) / len(p))
+
+
+@pytest.mark.parametrize("torus", [False, True])
+def test_thinning_holes_are_evened_out_at_large_scales(torus):
+    # a jittered 32 x 32 grid is even at large scales; 24 points removed leave holes whose
+    # low-frequency power the restore takes out again, with small moves
+    rng = np.random.default_rng(4)
+    g = (np.stack(np.meshgrid(np.arange(32), np.arange(32)), -1).reshape(-1, 2) + 0.5) / 32
+    full = g + rng.uniform(-0.05, 0.05, g.shape) / 32
+    kept = eliminate(full, 1000, torus=torus)
+    moved = elimination.restore_low_frequencies(kept, full, torus=torus)
+    assert moved.shape == (1000, 2) and ((moved >= 0) & (moved < 1)).all()
+    assert low_power(kept) > 10 * low_power(full)
+    assert low_power(moved) < 0.15 * low_power(kept)
+    step = moved - kept
+    if torus:
+        step -= np.round(step)
+    assert np.abs(step).max() < 0.5 / 32  # under half a spacing
+    # nothing to restore when nothing was removed: thin is then the identity
+    np.testing.assert_array_equal(elimination.thin(full, 1024, torus=torus), full)
+
+
+def test_thinned_sets_keep_the_samplers_large_scale_character():
+    # white noise keeps its white-noise power at large scales: the restore aims at the
+    # full set's own density, not at an even one
+    full = np.random.default_rng(5).random((1024, 2))
+    moved = elimination.thin(full, 1000)
+    assert 0.5 < low_power(moved) / low_power(full) < 2
