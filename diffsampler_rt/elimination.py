@@ -85,9 +85,13 @@ def eliminate(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
     return out[0] if single else out
 
 
-def thin(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
-    """:func:`eliminate` down to ``n`` points, then :func:`restore_low_frequencies` from each
-    set's full one: what the runtime does at an n that is not a square.
+def thin(points: np.ndarray, n: int, *, torus: bool = False,
+         rngs: list[np.random.Generator] | None = None) -> np.ndarray:
+    """:func:`eliminate` down to ``n`` points, or with ``rngs`` (one generator per set) drop
+    points at random, then :func:`restore_low_frequencies` from each set's full one: what
+    the runtime does at an n that is not a square (blue-noise models, whose card keeps a
+    minimum spacing, lose their most crowded points; the others, whose samplers put points
+    close together too, lose points at random, which keeps that).
 
     Examples
     --------
@@ -97,7 +101,19 @@ def thin(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
     (2, 1000, 2)
     """
     full = np.asarray(points, dtype=np.float64)
-    kept = eliminate(full, n, torus=torus)
+    if rngs is None:
+        kept = eliminate(full, n, torus=torus)
+    else:
+        flat = full.reshape((-1,) + full.shape[-2:])
+        if len(rngs) != len(flat):
+            raise ValueError(f"rngs must give one generator per set ({len(flat)}), got "
+                             f"{len(rngs)}")
+        if not 1 <= n <= flat.shape[1]:
+            raise ValueError(f"n must be an integer in [1, {flat.shape[1]}] (the points per "
+                             f"set), got {n!r}")
+        keep = [np.sort(g.permutation(flat.shape[1])[:n]) for g in rngs]
+        kept = np.stack([p[i] for p, i in zip(flat, keep)]).reshape(
+            full.shape[:-2] + (n, 2))
     if kept.shape == full.shape:
         return kept
     if full.ndim == 2:

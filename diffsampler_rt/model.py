@@ -257,6 +257,7 @@ class Model:
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
         density = self.card.get("density")
+        crowded_first = "min_spacing" in self.card  # a blue-noise card: thin by elimination
         # a net with circular padding makes sets on the torus: decoded modulo 1 and shifted
         # by a uniform random vector, so the set's seam is anywhere, as for the sampler
         toroidal = self.card.get("padding") == "circular"
@@ -296,8 +297,8 @@ class Model:
                 pts = impose_unchecked(pts, k, self.card["structure"], sub)
             if relattice:  # n not a square: the thinned set's nearest lattice of n points
                 pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
-            elif n < k * k:  # the k*k - n most crowded points go, the large scales restored
-                pts = thin(pts, n, torus=toroidal)
+            elif n < k * k:  # blue noise: the k*k - n most crowded points go; else at random
+                pts = thin(pts, n, torus=toroidal, rngs=None if crowded_first else sub)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))

@@ -152,3 +152,19 @@ def test_thinned_sets_keep_the_samplers_large_scale_character():
     full = np.random.default_rng(5).random((1024, 2))
     moved = elimination.thin(full, 1000)
     assert 0.5 < low_power(moved) / low_power(full) < 2
+
+
+def test_models_without_a_spacing_lose_points_at_random():
+    # sobol_owen's sampler puts points close together: its thinned sets keep that (elimination
+    # would take the closest pairs apart); the streams make it reproducible
+    m = diffsampler_rt.load("sobol_owen_fast")
+    sets = m.generate(1000, 4, seed=1)
+    full = m.generate(1024, 4, seed=1)
+    assert abs(min_distance(sets).mean() / min_distance(full).mean() - 1) < 0.3
+    assert min_distance(eliminate(full, 1000)).mean() > 2 * min_distance(sets).mean()
+    np.testing.assert_array_equal(sets, m.generate(1000, 4, seed=1))
+    rngs = [np.random.default_rng(i) for i in range(2)]
+    with pytest.raises(ValueError, match="one generator per set"):
+        elimination.thin(full, 1000, rngs=rngs)
+    with pytest.raises(ValueError, match="got 2000"):
+        elimination.thin(full[:2], 2000, rngs=rngs)
