@@ -35,6 +35,16 @@ def test_generate_to_stdout(capsys):
     assert len(lines) == 16 and all(len(l.split()) == 2 for l in lines)
 
 
+def test_generate_any_n(tmp_path):
+    out = tmp_path / "pts.npy"
+    assert main(["generate", "gbn_fast", "1000", "--count", "2", "--seed", "3", "-o",
+                 str(out)]) == 0
+    pts = np.load(out)
+    assert pts.shape == (2, 1000, 2)
+    np.testing.assert_array_equal(pts, __import__("diffsampler_rt").generate(
+        "gbn_fast", 1000, count=2, seed=3))
+
+
 def test_list_and_info(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
