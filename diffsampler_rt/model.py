@@ -244,7 +244,7 @@ class Model:
         relattice = bool(structure) and lattice and n < k * k
         spacing = radius(self.card, n) if structure else None
         polishing = self.card.get("sliced_ot") if structure else None
-        sliced = iterations_at(polishing, n) if polishing else 0
+        sliced = iterations_at(polishing, n, thinned=n < k * k) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
         shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,

@@ -73,6 +73,8 @@ def test_iterations_per_size():
     assert [iterations_at(spec, n) for n in (64, 256, 512, 1024, 2048, 4096, 65536)] == \
         [0, 0, 4, 8, 12, 16, 16]
     assert iterations_at({"directions": 8, "iterations": 3}, 100) == 3
+    # a thinned set (n not a square) is polished 3x as long, at least 12 iterations
+    assert [iterations_at(spec, n, thinned=True) for n in (200, 1000, 4000)] == [12, 24, 48]
 
 
 @pytest.mark.parametrize("spec, message", [
