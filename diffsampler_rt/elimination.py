@@ -4,10 +4,13 @@ The network makes k*k points on a k x k grid. For an n that is not a perfect squ
 runtime makes the next square, m = ceil(sqrt n)^2 points (at most 2 sqrt(n) more than n),
 and removes m - n of them by weighted sample elimination (Yuksel 2015, "Sample Elimination
 for Generating Poisson Disk Sample Sets"): every point carries the weight of its neighbours
-closer than 2 r, w(d) = (1 - d / 2r)^8 with r = sqrt(1 / (2 sqrt(3) n)) (the spacing of a
-hexagonal packing of n points), and the point of greatest weight, the most crowded one,
-goes first, its neighbours' weights lowered, until n are left. The removed points are the
-closest pairs' partners, so the minimum distance does not shrink.
+closer than 2 r, w(d) = (1 - d / 2r)^8 with r = sqrt(1 / (2 sqrt(3) n)) (the disk radius
+of a hexagonal packing of n points, half its spacing), and the point of greatest weight,
+the most crowded one, goes first, its neighbours' weights lowered, until n are left. The
+removed points are the closest pairs' partners, so the minimum distance does not shrink.
+That suits blue noise (a card with a minimum spacing); the runtime thins the other models'
+sets at random instead (:func:`thin` with ``rngs``), which keeps their close pairs, and the
+lattice models' thinned sets are replaced by their nearest lattice of n points.
 
 Each removed point leaves a hole, and the holes add power at every frequency, about
 (m - n) / n of white noise's: for samplers whose sets are very even at large scales (GBN,
@@ -16,8 +19,11 @@ points removed from 1024: Gaussian MSE 4.6x the sampler's; at n = 200, 25 of 225
 :func:`restore_low_frequencies` then moves the kept points by a smooth displacement field
 so that their density below ``cut`` sqrt(n) is again that of the set they were thinned from
 (one Poisson solve by FFT; on the torus for toroidal models, else mirrored, so that no
-point is pushed across an edge). The set's own large-scale character stays, which ever it
+point is pushed across an edge). The set's own large-scale character stays, whichever it
 was: Poisson-disk sets keep their white-noise-like low frequencies, GBN's stay near zero.
+The SOT models' polish, which follows, then runs three times as long
+(:func:`diffsampler_rt.sliced_ot.iterations_at`). How close all this comes to the samplers'
+own sets of such sizes: benchmarks/results/any_n.md.
 
 Pure numpy, deterministic (ties go to the lowest index), one set at a time.
 """
