@@ -313,3 +313,19 @@ def test_fidelity_tally_counts_every_figure_by_its_mark():
                               "b": {"within": 4, "noise": 0, "beyond": 1}}
     lines = _tally_lines(results)
     assert "| a | 10 | 8 | 1 | 1 |" in lines and lines[-1] == "| **all** | 15 | 12 | 1 | 2 |"
+
+
+def test_any_n_report_runs(tmp_path):
+    env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path / "cache")}
+    cmd = [sys.executable, "benchmarks/any_n.py", "--models", "sobol_owen_fast", "rank1",
+           "--sizes", "50", "--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = (tmp_path / "out" / "any_n.md").read_text()
+    assert "| 50 (8x8) | 3 | **thinned** |" in md and "| 50 (8x8) | 3 | dropped at random |" in md
+    assert "## rank1" in md and (tmp_path / "out" / "any_n.png").stat().st_size > 1000
+    for bad, match in ((["--sizes", "64"], "64 is a perfect square"),
+                       (["--models", "ldbn"], "not measured here")):
+        res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "50"] + bad,
+                             capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+        assert res.returncode == 2 and match in res.stderr
