@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 
+from ._cic import deposit
 from .spacing import close_pairs
 
 #: the weight's exponent (Yuksel's alpha)
@@ -152,21 +153,6 @@ def _kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:
     return keep
 
 
-def _deposit(p: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cloud-in-cell weights of points p (n, 2) in [0, 1)^2 on an m x m torus grid:
-    (grid, lower cell per point, fractional offsets)."""
-    f = p * m
-    base = np.floor(f).astype(np.int64)
-    w = f - base
-    grid = np.zeros(m * m)
-    for dx in (0, 1):
-        for dy in (0, 1):
-            weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
-            grid += np.bincount(((base[:, 0] + dx) % m) * m + (base[:, 1] + dy) % m, weight,
-                                minlength=m * m)
-    return grid.reshape(m, m), base, w
-
-
 def _mirrored(p: np.ndarray) -> np.ndarray:
     """The four reflections of p into [0, 2)^2, scaled to [0, 1)^2: a set whose periodic
     extension has no seam (displacements normal to the square's edges vanish there)."""
@@ -205,8 +191,8 @@ def restore_low_frequencies(kept: np.ndarray, full: np.ndarray, *, torus: bool =
     r2 = fx * fx + fy * fy
     low = (r2 > 0) & (r2 < fc * fc)
     taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
-    grid_a, base, w = _deposit(a, m)
-    diff = np.fft.fft2(grid_a) / len(a) - np.fft.fft2(_deposit(b, m)[0]) / len(b)
+    grid_a, base, w = deposit(a, m)
+    diff = np.fft.fft2(grid_a) / len(a) - np.fft.fft2(deposit(b, m)[0]) / len(b)
     psi = np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
     u = np.zeros_like(a)
     for axis, freq in enumerate((fx, fy)):

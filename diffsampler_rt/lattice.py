@@ -24,6 +24,8 @@ import math
 
 import numpy as np
 
+from ._cic import deposit
+
 _BELOW_ONE = np.nextafter(1.0, 0.0)
 #: half-width of the frequency box scored, in units of sqrt(n)
 BOX = 1.5
@@ -35,17 +37,9 @@ def _power(points: np.ndarray, half: int) -> np.ndarray:
     (M >= 8 half: aliases come in at most ~2 % of a peak's amplitude), deconvolved."""
     n = len(points)
     m = 1 << max(4, math.ceil(math.log2(8 * half)))
-    f = points * m
-    base = np.floor(f).astype(np.int64)
-    w = f - base
-    hist = np.zeros(m * m)
-    for dx in (0, 1):
-        for dy in (0, 1):
-            weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
-            cell = ((base[:, 0] + dx) % m) * m + (base[:, 1] + dy) % m
-            hist += np.bincount(cell, weight, minlength=m * m)
+    hist = deposit(points, m)[0]
     # numpy's FFT has exp(-2 pi i ...): conjugate; rows are h_1, columns h_2 >= 0
-    spec = np.conj(np.fft.rfft2(hist.reshape(m, m)))[:, :half + 1]
+    spec = np.conj(np.fft.rfft2(hist))[:, :half + 1]
     spec = np.concatenate([spec[m - half:], spec[:half + 1]])
     h = np.arange(-half, half + 1) / m
     taper = np.sinc(h) ** 2  # cloud-in-cell transfer function per axis
