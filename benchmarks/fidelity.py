@@ -43,6 +43,7 @@ sys.path.insert(0, str(ROOT))
 import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
 from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E402
+from diffsampler_rt.low_frequencies import describe as describe_even  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
                                seed_curve)
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
@@ -560,6 +561,8 @@ def model_card_text(c: dict) -> str:
             + _structure_text(c)
             + (f"; then sliced-OT {describe_sliced(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
                if c.get("sliced_ot") else "")
+            + (f"; density deviations at large scales shrunk: {describe_even(c['even_out'])} "
+               "(diffsampler_rt.low_frequencies)" if c.get("even_out") else "")
             + (f"; pairs closer than {describe_spacing(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 

@@ -10,6 +10,7 @@ from typing import Any, Mapping
 
 from . import per_size
 from .coarse_noise import settings_problem as coarse_problem
+from .low_frequencies import settings_problem as even_problem
 from .density import check_table
 from .errors import ModelFormatError
 from .schedule import betas
@@ -114,6 +115,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if "sliced_ot" in card and (problem := sliced_problem(card["sliced_ot"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
+    if "even_out" in card and (problem := even_problem(card["even_out"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):
         raise ModelFormatError(f"{source}: {problem}")

@@ -33,14 +33,11 @@ import math
 
 import numpy as np
 
-from ._cic import deposit
+from .low_frequencies import restore_low_frequencies
 from .spacing import close_pairs
 
 #: the weight's exponent (Yuksel's alpha)
 ALPHA = 8.0
-#: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
-#: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings)
-RESTORE_CUT = 0.25
 
 
 def hexagonal_spacing(n: int) -> float:
@@ -151,56 +148,3 @@ def _kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:
         sl = slice(at[a], at[a + 1])
         np.subtract.at(weight, nbr[sl], wt[sl])
     return keep
-
-
-def _mirrored(p: np.ndarray) -> np.ndarray:
-    """The four reflections of p into [0, 2)^2, scaled to [0, 1)^2: a set whose periodic
-    extension has no seam (displacements normal to the square's edges vanish there)."""
-    q = np.concatenate([p, p * [-1, 1] + [2, 0], p * [1, -1] + [0, 2], 2 - p])
-    return np.minimum(q / 2, np.nextafter(1.0, 0.0))
-
-
-def restore_low_frequencies(kept: np.ndarray, full: np.ndarray, *, torus: bool = False,
-                            cut: float = RESTORE_CUT) -> np.ndarray:
-    """Move the points ``kept`` (n, 2), thinned from ``full`` (m, 2), so that their density
-    below ``cut`` sqrt(n) cycles across the square is that of ``full``.
-
-    The density difference d (kept's minus full's, each normalised to one, low-passed) is
-    undone by the displacement u = grad psi with laplacian(psi) = d, to first order (the
-    continuity equation); psi comes from one FFT on a grid, u is interpolated at the points.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from diffsampler_rt.elimination import eliminate, restore_low_frequencies
-    >>> full = np.random.default_rng(0).random((225, 2))
-    >>> kept = eliminate(full, 200)
-    >>> moved = restore_low_frequencies(kept, full)
-    >>> moved.shape, bool(np.all((moved >= 0) & (moved < 1)))
-    ((200, 2), True)
-    """
-    kept = np.asarray(kept, dtype=np.float64)
-    full = np.asarray(full, dtype=np.float64)
-    n = len(kept)
-    a, b = (kept, full) if torus else (_mirrored(kept), _mirrored(full))
-    scale = 1 if torus else 2  # the mirrored square is twice as wide: twice the frequencies
-    fc = scale * cut * math.sqrt(n)
-    m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
-    f = np.fft.fftfreq(m, 1.0 / m)
-    fx, fy = np.meshgrid(f, f, indexing="ij")
-    r2 = fx * fx + fy * fy
-    low = (r2 > 0) & (r2 < fc * fc)
-    taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
-    grid_a, base, w = deposit(a, m)
-    diff = np.fft.fft2(grid_a) / len(a) - np.fft.fft2(deposit(b, m)[0]) / len(b)
-    psi = np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
-    u = np.zeros_like(a)
-    for axis, freq in enumerate((fx, fy)):
-        field = np.real(np.fft.ifft2(2j * np.pi * freq * psi)) * m * m
-        for dx in (0, 1):
-            for dy in (0, 1):
-                weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
-                u[:, axis] += weight * field[(base[:, 0] + dx) % m, (base[:, 1] + dy) % m]
-    if torus:
-        return np.minimum((kept + u) % 1.0, np.nextafter(1.0, 0.0))
-    return np.clip(2 * (a + u)[:n], 0.0, np.nextafter(1.0, 0.0))  # the unreflected copy

@@ -19,6 +19,8 @@ from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .lattice import nearest_rank1_lattice
+from .low_frequencies import even_out
+from .low_frequencies import gain_at as even_gain_at
 from .metadata import WireFormatError, read_metadata
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
@@ -247,12 +249,15 @@ class Model:
         sliced = iterations_at(polishing, n, thinned=n < k * k) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
         shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
+        even = self.card.get("even_out") if structure else None
+        evening = (even_gain_at(even, n), even["cut"]) if even else None
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, relattice, spacing, sliced, shaping)
+                            imposed, relattice, spacing, sliced, shaping, evening)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
-                spacing: float | None, sliced: int, shaping: tuple[float, float] | None):
+                spacing: float | None, sliced: int, shaping: tuple[float, float] | None,
+                evening: tuple[float, float] | None = None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -302,6 +307,8 @@ class Model:
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))
+            if evening is not None:  # (gain, cut) of the card's "even_out"
+                pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
             if spacing is not None and not imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             # a non-uniform model's net makes the sets in the uniform square

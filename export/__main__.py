@@ -4,7 +4,8 @@
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
-[--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]``:
+[--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
+[--even-out G|N:G,...|none [--even-out-cut C]]``:
 change the sampling defaults in an exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
@@ -70,17 +71,18 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--coarse-noise-cut", type=float, metavar="C",
                    help="modes up to C times the grid's Nyquist frequency, 0 < C <= 1 "
                         "(default 0.25; with --coarse-noise)")
+    p.add_argument("--even-out", metavar="G|N:G,N:G,...|none",
+                   help="shrink each set's density deviations from uniform at large scales "
+                        "by the factor 1 - G (G < 0 amplifies them); N:G pairs give G per "
+                        "size (linear in log n between them); none: remove")
+    p.add_argument("--even-out-cut", type=float, metavar="C",
+                   help="below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1; "
+                        "with --even-out)")
     args = p.parse_args(argv)
-    coarse = args.coarse_noise
-    if args.coarse_noise_cut is not None and (coarse is None or coarse == "none"):
-        print("error: --coarse-noise-cut needs --coarse-noise G or N:G,...", file=sys.stderr)
+    coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
+    even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
+    if coarse is False or even is False:
         return 2
-    if coarse is not None and coarse != "none":
-        table = _table_arg(coarse, "gain", float, "--coarse-noise", "a number", "N:G")
-        if table is None:
-            return 2
-        cut = 0.25 if args.coarse_noise_cut is None else args.coarse_noise_cut
-        coarse = {"cut": cut, **(table if isinstance(table, dict) else {"gain": table})}
     sliced = args.sliced_ot
     for flag, value in (("directions", args.sliced_ot_directions),
                         ("step", args.sliced_ot_step)):
@@ -112,6 +114,7 @@ def set_defaults_main(argv: list[str]) -> int:
     if _missing(args.model):
         return 2
     from diffsampler_rt.coarse_noise import describe as describe_coarse
+    from diffsampler_rt.low_frequencies import describe as describe_even
     from diffsampler_rt.sliced_ot import describe as describe_sliced
     from diffsampler_rt.spacing import describe as describe_spacing
 
@@ -122,7 +125,7 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure_min_side=args.structure_min_side,
                             structure_guidance=args.structure_guidance,
                             structure_sides=sides, sliced_ot=sliced,
-                            min_spacing=spacing, coarse_noise=coarse)
+                            min_spacing=spacing, coarse_noise=coarse, even_out=even)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -130,8 +133,24 @@ def set_defaults_main(argv: list[str]) -> int:
           f"{card['default_steps']} steps, structure {structure_text(card)}, "
           f"sliced OT {describe_sliced(card.get('sliced_ot'))}, "
           f"min spacing {describe_spacing(card.get('min_spacing'))}, "
-          f"coarse noise {describe_coarse(card.get('coarse_noise'))}")
+          f"coarse noise {describe_coarse(card.get('coarse_noise'))}, "
+          f"even out {describe_even(card.get('even_out'))}")
     return 0
+
+
+def _gain_arg(value: str | None, cut: float | None, flag: str, default_cut: float):
+    """A card's gain table {"cut": C, "gain": G or "n"/"gain" lists} from ``flag``'s value
+    and its ``-cut`` option, "none", None (not given), or False after an error message."""
+    if cut is not None and (value is None or value == "none"):
+        print(f"error: {flag}-cut needs {flag} G or N:G,...", file=sys.stderr)
+        return False
+    if value is None or value == "none":
+        return value
+    table = _table_arg(value, "gain", float, flag, "a number", "N:G")
+    if table is None:
+        return False
+    return {"cut": default_cut if cut is None else cut,
+            **(table if isinstance(table, dict) else {"gain": table})}
 
 
 def structure_text(card: dict) -> str:

@@ -47,12 +47,13 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  structure_sides: list[int] | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
-                 coarse_noise: dict | str | None = None) -> dict:
+                 coarse_noise: dict | str | None = None,
+                 even_out: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
-    ``min_spacing`` / ``coarse_noise`` of the card in ``path`` (``"none"`` removes a
-    structure, with its three settings, a sliced-OT polish, a spacing or a noise gain);
-    returns the card."""
+    ``min_spacing`` / ``coarse_noise`` / ``even_out`` of the card in ``path`` (``"none"``
+    removes a structure, with its three settings, a sliced-OT polish, a spacing, a noise gain
+    or an evening-out); returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -86,6 +87,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card.pop("coarse_noise", None)
         elif coarse_noise is not None:
             card["coarse_noise"] = coarse_noise
+        if even_out == "none":
+            card.pop("even_out", None)
+        elif even_out is not None:
+            card["even_out"] = even_out
         if min_spacing == "none":
             card.pop("min_spacing", None)
         elif min_spacing is not None:

@@ -1,0 +1,169 @@
+"""Moving points by a smooth displacement field to set their density at large scales.
+
+The density of a point set (n, 2), low-passed below ``cut`` sqrt(n) cycles across the
+square, changes under a small displacement u by -div(u) (the continuity equation), so the
+move u = grad psi with laplacian(psi) = (the excess to remove) removes it to first order;
+psi comes from one FFT of the points deposited on a grid, and u is interpolated back at the
+points. On the torus for toroidal models; otherwise on the square mirrored into [0, 2)^2,
+whose periodic extension has no seam, so that no point is pushed across an edge.
+
+Two uses:
+
+- :func:`restore_low_frequencies`: a set thinned from a bigger one
+  (:mod:`diffsampler_rt.elimination`) gets the bigger set's large scales back (its holes'
+  power taken out);
+- :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
+  "n": [sizes], "gain": [G per size]}``, linear in log n between the sizes, the end values
+  beyond) shrinks a set's own density deviations by 1 - G, for nets whose sets are less
+  even at large scales than their sampler's.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from . import per_size
+from ._cic import deposit
+
+#: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
+#: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings)
+RESTORE_CUT = 0.25
+#: the most an ``"even_out"`` card may ask for: gains in [-MAX_GAIN, MAX_GAIN], cuts up to
+#: MAX_CUT sqrt(n) (beyond the blue-noise peak the move would reshape the pattern itself)
+MAX_GAIN, MAX_CUT = 0.9, 2.0
+
+
+def gain_at(spec: dict, n: int) -> float:
+    """The gain at n points of a card's ``"even_out"``."""
+    if "n" in spec:
+        return per_size.at(spec["n"], spec["gain"], n)
+    return float(spec["gain"])
+
+
+def describe(spec: dict | None) -> str:
+    """The card value in words: "none", or "gain 0.08 / 0.1 at n = 256 / 576 (log-linear)
+    below 1 sqrt(n)"."""
+    if not spec:
+        return "none"
+    if "n" in spec:
+        gain = ("gain " + per_size.describe(spec["n"], [f"{g:g}" for g in spec["gain"]])
+                + " (log-linear)")
+    else:
+        gain = f"gain {spec['gain']:g}"
+    return f"{gain} below {spec['cut']:g} sqrt(n)"
+
+
+def _number(v: Any, low: float, high: float) -> bool:
+    return (not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
+            and low <= v <= high)
+
+
+def settings_problem(spec: Any) -> str | None:
+    """Why a card's ``"even_out"`` value is invalid, or None."""
+    form = ("'even_out' must be {\"cut\": C, \"gain\": G} or {\"cut\": C, \"n\": [sizes], "
+            "\"gain\": [G per size]}")
+    if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
+        return f"{form}, got {spec!r}"
+    if not _number(spec["cut"], 1e-9, MAX_CUT):
+        return f"'even_out' cut must be a number in (0, {MAX_CUT:g}], got {spec['cut']!r}"
+    gains = spec["gain"]
+    if "n" in spec:
+        if not (per_size.sizes_ok(spec["n"]) and isinstance(gains, list)
+                and len(gains) == len(spec["n"])):
+            return (f"'even_out' n and gain must be lists of the same length, n strictly "
+                    f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
+    else:
+        gains = [gains]
+    if not all(_number(g, -MAX_GAIN, MAX_GAIN) for g in gains):
+        return (f"'even_out' gain must be numbers in [-{MAX_GAIN:g}, {MAX_GAIN:g}], got "
+                f"{spec['gain']!r}")
+    return None
+
+
+def _mirrored(p: np.ndarray) -> np.ndarray:
+    """The four reflections of p into [0, 2)^2, scaled to [0, 1)^2: a set whose periodic
+    extension has no seam (displacements normal to the square's edges vanish there)."""
+    q = np.concatenate([p, p * [-1, 1] + [2, 0], p * [1, -1] + [0, 2], 2 - p])
+    return np.minimum(q / 2, np.nextafter(1.0, 0.0))
+
+
+def restore_low_frequencies(kept: np.ndarray, full: np.ndarray, *, torus: bool = False,
+                            cut: float = RESTORE_CUT) -> np.ndarray:
+    """Move the points ``kept`` (n, 2), thinned from ``full`` (m, 2), so that their density
+    below ``cut`` sqrt(n) cycles across the square is that of ``full``.
+
+    The density difference d (kept's minus full's, each normalised to one, low-passed) is
+    undone by the displacement u = grad psi with laplacian(psi) = d, to first order (the
+    continuity equation); psi comes from one FFT on a grid, u is interpolated at the points.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.elimination import eliminate
+    >>> from diffsampler_rt.low_frequencies import restore_low_frequencies
+    >>> full = np.random.default_rng(0).random((225, 2))
+    >>> kept = eliminate(full, 200)
+    >>> moved = restore_low_frequencies(kept, full)
+    >>> moved.shape, bool(np.all((moved >= 0) & (moved < 1)))
+    ((200, 2), True)
+    """
+    return _move(np.asarray(kept, dtype=np.float64), np.asarray(full, dtype=np.float64),
+                 1.0, cut, torus)
+
+
+def even_out(points: np.ndarray, gain: float, *, cut: float, torus: bool = False) -> np.ndarray:
+    """Shrink each set's density deviations from uniform below ``cut`` sqrt(n) by the
+    factor 1 - ``gain`` (to first order; gain < 0 amplifies them), by a smooth displacement.
+
+    ``points`` (n, 2) or (sets, n, 2); gain 0 returns them unchanged.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.low_frequencies import even_out
+    >>> pts = np.random.default_rng(0).random((3, 256, 2))
+    >>> out = even_out(pts, 0.5, cut=1.0)
+    >>> out.shape, bool(np.all((out >= 0) & (out < 1)))
+    ((3, 256, 2), True)
+    >>> even_out(pts, 0.0, cut=1.0) is pts
+    True
+    """
+    if gain == 0:  # bit for bit: a per-size table may pass through 0
+        return points
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    return np.stack([_move(p, None, gain, cut, torus) for p in flat]).reshape(pts.shape)
+
+
+def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
+          torus: bool) -> np.ndarray:
+    """Points a0 (n, 2) moved so that ``gain`` of their low-passed density excess over
+    ``target``'s (None: uniform) goes: u = grad psi, laplacian(psi) = gain * excess."""
+    n = len(a0)
+    a = a0 if torus else _mirrored(a0)
+    scale = 1 if torus else 2  # the mirrored square is twice as wide: twice the frequencies
+    fc = scale * cut * math.sqrt(n)
+    m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
+    f = np.fft.fftfreq(m, 1.0 / m)
+    fx, fy = np.meshgrid(f, f, indexing="ij")
+    r2 = fx * fx + fy * fy
+    low = (r2 > 0) & (r2 < fc * fc)
+    taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
+    grid_a, base, w = deposit(a, m)
+    diff = np.fft.fft2(grid_a) / len(a)
+    if target is not None:
+        b = target if torus else _mirrored(target)
+        diff = diff - np.fft.fft2(deposit(b, m)[0]) / len(b)
+    psi = gain * np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
+    u = np.zeros_like(a)
+    for axis, freq in enumerate((fx, fy)):
+        field = np.real(np.fft.ifft2(2j * np.pi * freq * psi)) * m * m
+        for dx in (0, 1):
+            for dy in (0, 1):
+                weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
+                u[:, axis] += weight * field[(base[:, 0] + dx) % m, (base[:, 1] + dy) % m]
+    if torus:
+        return np.minimum((a0 + u) % 1.0, np.nextafter(1.0, 0.0))
+    return np.clip(2 * (a + u)[:n], 0.0, np.nextafter(1.0, 0.0))  # the unreflected copy

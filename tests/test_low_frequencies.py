@@ -1,0 +1,72 @@
+"""Smooth moves that set a point set's large scales (diffsampler_rt.low_frequencies)."""
+import doctest
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt import ModelFormatError, low_frequencies
+from diffsampler_rt.low_frequencies import even_out, gain_at, settings_problem
+from tests.test_elimination import low_power
+
+
+@pytest.mark.parametrize("torus", [False, True])
+def test_even_out_shrinks_the_large_scale_deviations_by_its_gain(torus):
+    # white noise: the power below the cut goes down by about (1 - gain)^2 (first order)
+    pts = np.random.default_rng(0).random((4, 1024, 2))
+    before = np.mean([low_power(p, 0.5) for p in pts])
+    for gain in (0.3, -0.3):
+        out = even_out(pts, gain, cut=0.5, torus=torus)
+        assert out.shape == pts.shape and ((out >= 0) & (out < 1)).all()
+        ratio = np.mean([low_power(p, 0.5) for p in out]) / before
+        assert abs(ratio - (1 - gain) ** 2) < 0.15, (gain, ratio)
+    assert even_out(pts, 0.0, cut=0.5, torus=torus) is pts
+
+
+def test_card_gain_table_and_validation():
+    spec = {"cut": 1.0, "n": [64, 256, 1024], "gain": [0, 0.1, 0]}
+    assert settings_problem(spec) is None
+    assert [gain_at(spec, n) for n in (16, 64, 256, 1024, 4096)] == [0, 0, 0.1, 0, 0]
+    assert gain_at({"cut": 1.0, "gain": 0.2}, 100) == 0.2
+    for bad, match in (({"cut": 1.0}, "must be"), ({"cut": 3, "gain": 0.1}, "cut must be"),
+                       ({"cut": 1, "gain": 0.95}, "gain must be"),
+                       ({"cut": 1, "gain": True}, "gain must be"),
+                       ({"cut": 1, "n": [256, 64], "gain": [0, 0]}, "strictly increasing")):
+        assert match in settings_problem(bad)
+    assert "none" == low_frequencies.describe(None)
+    assert low_frequencies.describe(spec) == ("gain 0 / 0.1 / 0 at n = 64 / 256 / 1024 "
+                                              "(log-linear) below 1 sqrt(n)")
+
+
+def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
+    from export.__main__ import main as export_main
+    src = diffsampler_rt.model.resolve("gbn_fast")
+    path = tmp_path / "m.onnx"
+    shutil.copy(src, path)
+    assert export_main(["set-defaults", str(path), "--even-out", "none"]) == 0
+    plain = diffsampler_rt.generate(path, 256, 2, seed=4)
+    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
+                        "--even-out-cut", "0.5"]) == 0
+    assert "even out gain 0.3 below 0.5 sqrt(n)" in capsys.readouterr().out
+    card = diffsampler_rt.load(path).card
+    assert card["even_out"] == {"cut": 0.5, "gain": 0.3}
+    evened = diffsampler_rt.generate(path, 256, 2, seed=4)
+    assert not np.array_equal(evened, plain)
+    assert np.mean([low_power(p, 0.5) for p in evened]) < np.mean([low_power(p, 0.5)
+                                                                    for p in plain])
+    # structure=False leaves it out
+    np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
+                                  diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
+    assert export_main(["set-defaults", str(path), "--even-out-cut", "0.5"]) == 2
+    assert export_main(["set-defaults", str(path), "--even-out", "2"]) == 2
+    assert "gain must be" in capsys.readouterr().err
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    bad = {**card, "even_out": {"cut": 1.0, "gain": "x"}}
+    with pytest.raises(ModelFormatError, match="model card field 'even_out' gain must be"):
+        parse_card({CARD_KEY: json.dumps(bad)}, "m.onnx")
+
+
+def test_docstring_examples():
+    assert doctest.testmod(low_frequencies).failed == 0
