@@ -146,20 +146,21 @@ def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
     scale = 1 if torus else 2  # the mirrored square is twice as wide: twice the frequencies
     fc = scale * cut * math.sqrt(n)
     m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
-    f = np.fft.fftfreq(m, 1.0 / m)
-    fx, fy = np.meshgrid(f, f, indexing="ij")
+    # real FFTs: the last axis holds the frequencies >= 0 only
+    fx = (np.fft.fftfreq(m, 1.0 / m))[:, None]
+    fy = (np.fft.rfftfreq(m, 1.0 / m))[None, :]
     r2 = fx * fx + fy * fy
     low = (r2 > 0) & (r2 < fc * fc)
     taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
     grid_a, base, w = deposit(a, m)
-    diff = np.fft.fft2(grid_a) / len(a)
+    diff = np.fft.rfft2(grid_a) / len(a)
     if target is not None:
         b = target if torus else _mirrored(target)
-        diff = diff - np.fft.fft2(deposit(b, m)[0]) / len(b)
+        diff = diff - np.fft.rfft2(deposit(b, m)[0]) / len(b)
     psi = gain * np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
     u = np.zeros_like(a)
     for axis, freq in enumerate((fx, fy)):
-        field = np.real(np.fft.ifft2(2j * np.pi * freq * psi)) * m * m
+        field = np.fft.irfft2(2j * np.pi * freq * psi, s=(m, m)) * m * m
         for dx in (0, 1):
             for dy in (0, 1):
                 weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
