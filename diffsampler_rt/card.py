@@ -10,9 +10,9 @@ from typing import Any, Mapping
 
 from . import per_size
 from .coarse_noise import settings_problem as coarse_problem
-from .low_frequencies import settings_problem as even_problem
 from .density import check_table
 from .errors import ModelFormatError
+from .low_frequencies import settings_problem as even_problem
 from .schedule import betas
 from .sliced_ot import settings_problem as sliced_problem
 from .solvers import SOLVERS

@@ -3,8 +3,9 @@
 The density of a point set (n, 2), low-passed below ``cut`` sqrt(n) cycles across the
 square, changes under a small displacement u by -div(u) (the continuity equation), so the
 move u = grad psi with laplacian(psi) = (the excess to remove) removes it to first order;
-psi comes from one FFT of the points deposited on a grid, and u is interpolated back at the
-points. On the torus for toroidal models; otherwise on the square mirrored into [0, 2)^2,
+psi comes from one FFT of the points deposited on a grid of 4 cut sqrt(n) + 8 cells a side
+or more, and u is interpolated back at the points (first order, and approximate: the
+pattern's finer scales alias into the grid's low frequencies a little). On the torus for toroidal models; otherwise on the square mirrored into [0, 2)^2,
 whose periodic extension has no seam, so that no point is pushed across an edge.
 
 Two uses:

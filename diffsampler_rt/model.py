@@ -138,11 +138,12 @@ class Model:
         ----------
         n : int
             Points per set, 16 <= n <= 512*512. The net makes k*k points on a k x k grid;
-            for an n that is not a square, k = ceil(sqrt n) and the k*k - n most crowded
-            points are removed (weighted sample elimination,
-            :mod:`diffsampler_rt.elimination`) before the polish and spacing, which go by
-            n; a lattice model's thinned set is then replaced by its nearest rank-1 lattice
-            of n points (with ``structure``).
+            for an n that is not a square, k = ceil(sqrt n) and k*k - n points are removed
+            (:mod:`diffsampler_rt.elimination`): a blue-noise model's (a card with a
+            minimum spacing) most crowded first, any other's at random, the set's large
+            scales then restored; the polish (three times as long) and the spacing follow,
+            at n. A lattice model's thinned set is replaced by its nearest rank-1 lattice
+            of n points instead (with ``structure``).
         count : int, optional
             Number of sets. ``None`` returns one set of shape (n, 2).
         seed : int or numpy.random.Generator, optional
@@ -170,7 +171,9 @@ class Model:
             ``"structure_sides"``;
             :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its
-            excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`) and
+            excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
+            ``"even_out"`` (gbn models: their sets' density deviations at large scales
+            shrunk by a smooth move; :mod:`diffsampler_rt.low_frequencies`) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
             every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
             that where a structure is imposed the spacing comes before it, so that the
@@ -179,7 +182,8 @@ class Model:
             Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
             of the solver's starting noise, so that the sets vary at large scales as
             much as the sampler's (:mod:`diffsampler_rt.coarse_noise`).
-            ``False`` returns the network's sets as decoded, from white noise.
+            ``False`` returns the network's sets as decoded, from white noise (thinned to
+            n points where n is not a square).
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
             So is a toroidal model's shift: a net with circular padding (``"padding":

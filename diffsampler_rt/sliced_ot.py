@@ -35,8 +35,8 @@ MAX_DIRECTIONS = 1024
 #: fixed-point iteration overshoots once the factor is too large)
 MAX_STEP = 2.0
 
-#: a thinned set's polish: THINNED_FACTOR times the card's iterations, at least THINNED_MIN
-#: times that (see iterations_at)
+#: a thinned set's polish: THINNED_FACTOR times the card's iterations, and at least
+#: THINNED_FACTOR * THINNED_MIN (see iterations_at)
 THINNED_FACTOR, THINNED_MIN = 3, 4
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
