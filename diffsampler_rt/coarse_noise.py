@@ -27,15 +27,10 @@ from . import per_size
 #: largest gain a card may ask for (the bundled cards use 1-1.7)
 MAX_GAIN = 4.0
 
-_FORM = ("'coarse_noise' must be {\"cut\": C, \"gain\": G} or {\"cut\": C, \"n\": [sizes], "
-         "\"gain\": [G per size]}")
-
 
 def gain_at(spec: dict, n: int) -> float:
     """The gain at n points of a card's ``"coarse_noise"``."""
-    if "n" in spec:
-        return per_size.at(spec["n"], spec["gain"], n)
-    return float(spec["gain"])
+    return per_size.gain_at(spec, n)
 
 
 def coarse_filter(k: int, gain: float, cut: float) -> np.ndarray:
@@ -75,33 +70,12 @@ def describe(spec: dict | None) -> str:
     "gain 1.3 / 1.5 at n = 64 / 1024 (log-linear) up to 0.25 x Nyquist"."""
     if not spec:
         return "none"
-    if "n" in spec:
-        gain = ("gain " + per_size.describe(spec["n"], [f"{g:g}" for g in spec["gain"]])
-                + " (log-linear)")
-    else:
-        gain = f"gain {spec['gain']:g}"
-    return f"{gain} up to {spec['cut']:g} x Nyquist"
-
-
-def _number(v: Any, low: float, high: float) -> bool:
-    return (not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
-            and low < v <= high)
+    return f"{per_size.describe_gain(spec)} up to {spec['cut']:g} x Nyquist"
 
 
 def settings_problem(spec: Any) -> str | None:
     """Why a card's ``"coarse_noise"`` value is invalid, or None."""
-    if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
-        return f"{_FORM}, got {spec!r}"
-    if not _number(spec["cut"], 0, 1):
-        return f"'coarse_noise' cut must be a number in (0, 1], got {spec['cut']!r}"
-    gains = spec["gain"]
-    if "n" in spec:
-        if not (per_size.sizes_ok(spec["n"]) and isinstance(gains, list)
-                and len(gains) == len(spec["n"])):
-            return (f"'coarse_noise' n and gain must be lists of the same length, n strictly "
-                    f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
-    else:
-        gains = [gains]
-    if not all(_number(g, 0, MAX_GAIN) for g in gains):
-        return f"'coarse_noise' gain must be numbers in (0, {MAX_GAIN:g}], got {spec['gain']!r}"
-    return None
+    return per_size.gain_table_problem(
+        spec, "coarse_noise", lambda c: per_size.finite_number(c) and 0 < c <= 1,
+        "a number in (0, 1]", lambda g: per_size.finite_number(g) and 0 < g <= MAX_GAIN,
+        f"numbers in (0, {MAX_GAIN:g}]")

@@ -38,9 +38,7 @@ MAX_GAIN, MAX_CUT = 0.9, 2.0
 
 def gain_at(spec: dict, n: int) -> float:
     """The gain at n points of a card's ``"even_out"``."""
-    if "n" in spec:
-        return per_size.at(spec["n"], spec["gain"], n)
-    return float(spec["gain"])
+    return per_size.gain_at(spec, n)
 
 
 def describe(spec: dict | None) -> str:
@@ -48,39 +46,16 @@ def describe(spec: dict | None) -> str:
     below 1 sqrt(n)"."""
     if not spec:
         return "none"
-    if "n" in spec:
-        gain = ("gain " + per_size.describe(spec["n"], [f"{g:g}" for g in spec["gain"]])
-                + " (log-linear)")
-    else:
-        gain = f"gain {spec['gain']:g}"
-    return f"{gain} below {spec['cut']:g} sqrt(n)"
-
-
-def _number(v: Any, low: float, high: float) -> bool:
-    return (not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
-            and low <= v <= high)
+    return f"{per_size.describe_gain(spec)} below {spec['cut']:g} sqrt(n)"
 
 
 def settings_problem(spec: Any) -> str | None:
     """Why a card's ``"even_out"`` value is invalid, or None."""
-    form = ("'even_out' must be {\"cut\": C, \"gain\": G} or {\"cut\": C, \"n\": [sizes], "
-            "\"gain\": [G per size]}")
-    if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
-        return f"{form}, got {spec!r}"
-    if not _number(spec["cut"], 1e-9, MAX_CUT):
-        return f"'even_out' cut must be a number in (0, {MAX_CUT:g}], got {spec['cut']!r}"
-    gains = spec["gain"]
-    if "n" in spec:
-        if not (per_size.sizes_ok(spec["n"]) and isinstance(gains, list)
-                and len(gains) == len(spec["n"])):
-            return (f"'even_out' n and gain must be lists of the same length, n strictly "
-                    f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
-    else:
-        gains = [gains]
-    if not all(_number(g, -MAX_GAIN, MAX_GAIN) for g in gains):
-        return (f"'even_out' gain must be numbers in [-{MAX_GAIN:g}, {MAX_GAIN:g}], got "
-                f"{spec['gain']!r}")
-    return None
+    return per_size.gain_table_problem(
+        spec, "even_out", lambda c: per_size.finite_number(c) and 0 < c <= MAX_CUT,
+        f"a number in (0, {MAX_CUT:g}]",
+        lambda g: per_size.finite_number(g) and -MAX_GAIN <= g <= MAX_GAIN,
+        f"numbers in [-{MAX_GAIN:g}, {MAX_GAIN:g}]")
 
 
 def _mirrored(p: np.ndarray) -> np.ndarray:

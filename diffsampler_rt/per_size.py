@@ -1,9 +1,10 @@
 """Card settings given per trained size (``"n": [...]`` beside the values): linear in log n
-between the listed sizes, the end values beyond. Used by ``min_spacing``, ``sliced_ot`` and
-``coarse_noise``."""
+between the listed sizes, the end values beyond. Used by ``min_spacing``, ``sliced_ot``,
+``coarse_noise`` and ``even_out`` (the last two share the form of a gain table:
+``{"cut": C, "gain": G}`` or ``{"cut": C, "n": [sizes], "gain": [G per size]}``)."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -25,3 +26,46 @@ def describe(sizes: Sequence[int], values: Sequence[str], what: str = "") -> str
     (``what`` goes between: "0 / 8 iterations at n = 256 / 1024")."""
     return (" / ".join(values) + (f" {what}" if what else "") + " at n = "
             + " / ".join(map(str, sizes)))
+
+
+def finite_number(v: Any) -> bool:
+    """A real number (not a bool), finite."""
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
+
+
+def gain_at(spec: dict, n: int) -> float:
+    """The gain at n points of a gain table."""
+    if "n" in spec:
+        return at(spec["n"], spec["gain"], n)
+    return float(spec["gain"])
+
+
+def describe_gain(spec: dict) -> str:
+    """A gain table's gains in words: "gain 1.4" or "gain 1.3 / 1.5 at n = 64 / 1024
+    (log-linear)"."""
+    if "n" in spec:
+        return "gain " + describe(spec["n"], [f"{g:g}" for g in spec["gain"]]) + " (log-linear)"
+    return f"gain {spec['gain']:g}"
+
+
+def gain_table_problem(spec: Any, field: str, cut_ok: Callable[[Any], bool], cut_text: str,
+                       gain_ok: Callable[[Any], bool], gain_text: str) -> str | None:
+    """Why the card's gain table ``field`` is invalid, or None; ``cut_ok`` / ``gain_ok``
+    accept a cut / a gain, described by ``cut_text`` / ``gain_text``."""
+    form = (f"'{field}' must be {{\"cut\": C, \"gain\": G}} or {{\"cut\": C, \"n\": "
+            "[sizes], \"gain\": [G per size]}")
+    if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
+        return f"{form}, got {spec!r}"
+    if not cut_ok(spec["cut"]):
+        return f"'{field}' cut must be {cut_text}, got {spec['cut']!r}"
+    gains = spec["gain"]
+    if "n" in spec:
+        if not (sizes_ok(spec["n"]) and isinstance(gains, list)
+                and len(gains) == len(spec["n"])):
+            return (f"'{field}' n and gain must be lists of the same length, n strictly "
+                    f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
+    else:
+        gains = [gains]
+    if not all(gain_ok(g) for g in gains):
+        return f"'{field}' gain must be {gain_text}, got {spec['gain']!r}"
+    return None
