@@ -83,8 +83,7 @@ def eliminate(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
         raise ValueError(f"points must have shape (m, 2) or (sets, m, 2), got "
                          f"{np.shape(points)}")
     m = pts.shape[1]
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= m:
-        raise ValueError(f"n must be an integer in [1, {m}] (the points per set), got {n!r}")
+    _check_n(n, m)
     out = np.stack([p[_kept(p, int(n), torus)] for p in pts]) if n < m else pts.copy()
     return out[0] if single else out
 
@@ -112,9 +111,7 @@ def thin(points: np.ndarray, n: int, *, torus: bool = False,
         if len(rngs) != len(flat):
             raise ValueError(f"rngs must give one generator per set ({len(flat)}), got "
                              f"{len(rngs)}")
-        if not 1 <= n <= flat.shape[1]:
-            raise ValueError(f"n must be an integer in [1, {flat.shape[1]}] (the points per "
-                             f"set), got {n!r}")
+        _check_n(n, flat.shape[1])
         keep = [np.sort(g.permutation(flat.shape[1])[:n]) for g in rngs]
         kept = np.stack([p[i] for p, i in zip(flat, keep)]).reshape(
             full.shape[:-2] + (n, 2))
@@ -123,6 +120,11 @@ def thin(points: np.ndarray, n: int, *, torus: bool = False,
     if full.ndim == 2:
         return restore_low_frequencies(kept, full, torus=torus)
     return np.stack([restore_low_frequencies(k, f, torus=torus) for k, f in zip(kept, full)])
+
+
+def _check_n(n: object, m: int) -> None:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= m:
+        raise ValueError(f"n must be an integer in [1, {m}] (the points per set), got {n!r}")
 
 
 def _kept(p: np.ndarray, n: int, torus: bool) -> np.ndarray:

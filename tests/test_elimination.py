@@ -168,3 +168,5 @@ def test_models_without_a_spacing_lose_points_at_random():
         elimination.thin(full, 1000, rngs=rngs)
     with pytest.raises(ValueError, match="got 2000"):
         elimination.thin(full[:2], 2000, rngs=rngs)
+    with pytest.raises(ValueError, match="got 500.0"):
+        elimination.thin(full[:2], 500.0, rngs=rngs)
