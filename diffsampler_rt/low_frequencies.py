@@ -21,6 +21,7 @@ Two uses:
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -113,6 +114,22 @@ def even_out(points: np.ndarray, gain: float, *, cut: float, torus: bool = False
     return np.stack([_move(p, None, gain, cut, torus) for p in flat]).reshape(pts.shape)
 
 
+@lru_cache(maxsize=16)
+def _operator(m: int, fc: float) -> tuple[np.ndarray, ...]:
+    """The real-FFT frequencies of an m x m grid (the last axis holds those >= 0 only), the
+    mask 0 < |f| < fc, the cloud-in-cell transfer function and the Laplacian's symbol:
+    the same for every set of a size, so made once (read-only, shared)."""
+    fx = (np.fft.fftfreq(m, 1.0 / m))[:, None]
+    fy = (np.fft.rfftfreq(m, 1.0 / m))[None, :]
+    r2 = fx * fx + fy * fy
+    low = (r2 > 0) & (r2 < fc * fc)
+    taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2
+    laplacian = -4 * np.pi ** 2 * np.where(low, r2, 1)
+    for v in (fx, fy, low, taper, laplacian):
+        v.flags.writeable = False
+    return fx, fy, low, taper, laplacian
+
+
 def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
           torus: bool) -> np.ndarray:
     """Points a0 (n, 2) moved so that ``gain`` of their low-passed density excess over
@@ -122,25 +139,21 @@ def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
     scale = 1 if torus else 2  # the mirrored square is twice as wide: twice the frequencies
     fc = scale * cut * math.sqrt(n)
     m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
-    # real FFTs: the last axis holds the frequencies >= 0 only
-    fx = (np.fft.fftfreq(m, 1.0 / m))[:, None]
-    fy = (np.fft.rfftfreq(m, 1.0 / m))[None, :]
-    r2 = fx * fx + fy * fy
-    low = (r2 > 0) & (r2 < fc * fc)
-    taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2  # the cloud-in-cell transfer function
+    fx, fy, low, taper, laplacian = _operator(m, fc)
     grid_a, base, w = deposit(a, m)
     diff = np.fft.rfft2(grid_a) / len(a)
     if target is not None:
         b = target if torus else _mirrored(target)
         diff = diff - np.fft.rfft2(deposit(b, m)[0]) / len(b)
-    psi = gain * np.where(low, diff / taper, 0) / (-4 * np.pi ** 2 * np.where(low, r2, 1))
+    psi = gain * np.where(low, diff / taper, 0) / laplacian
+    # the cloud-in-cell weights again, to read the grid back at the points
+    corners = [((w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1]),
+                (base[:, 0] + dx) % m, (base[:, 1] + dy) % m) for dx in (0, 1) for dy in (0, 1)]
     u = np.zeros_like(a)
     for axis, freq in enumerate((fx, fy)):
         field = np.fft.irfft2(2j * np.pi * freq * psi, s=(m, m)) * m * m
-        for dx in (0, 1):
-            for dy in (0, 1):
-                weight = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1])
-                u[:, axis] += weight * field[(base[:, 0] + dx) % m, (base[:, 1] + dy) % m]
+        for weight, ix, iy in corners:
+            u[:, axis] += weight * field[ix, iy]
     if torus:
         return np.minimum((a0 + u) % 1.0, np.nextafter(1.0, 0.0))
     return np.clip(2 * (a + u)[:n], 0.0, np.nextafter(1.0, 0.0))  # the unreflected copy
