@@ -7,6 +7,7 @@ import pytest
 import diffsampler_rt
 from diffsampler_rt import elimination
 from diffsampler_rt.elimination import eliminate, hexagonal_spacing
+from diffsampler_rt.spectrum import periodogram
 from trainer.stats import min_distance
 
 
@@ -119,11 +120,8 @@ def low_power(p: np.ndarray, cut: float = 0.25) -> float:
     """Mean |sum_j exp(-2 pi i f . x_j)|^2 / n over integer 0 < |f| < cut sqrt(n)."""
     fc = cut * np.sqrt(len(p))
     f = np.arange(-int(fc), int(fc) + 1)
-    fx, fy = np.meshgrid(f, f)
-    keep = (fx ** 2 + fy ** 2 > 0) & (fx ** 2 + fy ** 2 < fc * fc)
-    fr = np.stack([fx[keep], fy[keep]], 1)
-    s = np.exp(-2j * np.pi * p @ fr.T).sum(0)
-    return float(np.mean(np.abs(s) ** 2) / len(p))
+    r2 = f[:, None] ** 2 + f[None, :] ** 2
+    return float(periodogram(p, int(fc))[(r2 > 0) & (r2 < fc * fc)].mean())
 
 
 @pytest.mark.parametrize("torus", [False, True])
