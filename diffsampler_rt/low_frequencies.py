@@ -14,8 +14,8 @@ Two uses:
   (:mod:`diffsampler_rt.elimination`) gets the bigger set's large scales back (its holes'
   power taken out);
 - :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
-  "n": [sizes], "gain": [G per size]}``, linear in log n between the sizes, the end values
-  beyond) shrinks a set's own density deviations by 1 - G, for nets whose sets are less
+  "n": [sizes], "gain": [G per size]}``, the cut possibly a list per size too; linear in
+  log n between the sizes, the end values beyond) shrinks a set's own density deviations by 1 - G, for nets whose sets are less
   even at large scales than their sampler's.
 """
 from __future__ import annotations
@@ -47,7 +47,7 @@ def describe(spec: dict | None) -> str:
     below 1 sqrt(n)"."""
     if not spec:
         return "none"
-    return f"{per_size.describe_gain(spec)} below {spec['cut']:g} sqrt(n)"
+    return f"{per_size.describe_gain(spec)} below {per_size.describe_cut(spec)} sqrt(n)"
 
 
 def settings_problem(spec: Any) -> str | None:

@@ -22,6 +22,7 @@ from .lattice import nearest_rank1_lattice
 from .low_frequencies import even_out
 from .low_frequencies import gain_at as even_gain_at
 from .metadata import WireFormatError, read_metadata
+from .per_size import cut_at
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
@@ -252,9 +253,9 @@ class Model:
         polishing = self.card.get("sliced_ot") if structure else None
         sliced = iterations_at(polishing, n, thinned=n < k * k) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
-        shaping = (gain_at(coarse, k * k), coarse["cut"]) if coarse else None
+        shaping = (gain_at(coarse, k * k), cut_at(coarse, k * k)) if coarse else None
         even = self.card.get("even_out") if structure else None
-        evening = (even_gain_at(even, n), even["cut"]) if even else None
+        evening = (even_gain_at(even, n), cut_at(even, n)) if even else None
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
                             imposed, relattice, spacing, sliced, shaping, evening)
 

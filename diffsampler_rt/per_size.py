@@ -1,7 +1,8 @@
 """Card settings given per trained size (``"n": [...]`` beside the values): linear in log n
 between the listed sizes, the end values beyond. Used by ``min_spacing``, ``sliced_ot``,
 ``coarse_noise`` and ``even_out`` (the last two share the form of a gain table:
-``{"cut": C, "gain": G}`` or ``{"cut": C, "n": [sizes], "gain": [G per size]}``)."""
+``{"cut": C, "gain": G}`` or ``{"cut": C, "n": [sizes], "gain": [G per size]}``, where the
+cut may be a list per size too: ``"cut": [C per size]``)."""
 from __future__ import annotations
 
 from typing import Any, Callable, Sequence
@@ -35,9 +36,25 @@ def finite_number(v: Any) -> bool:
 
 def gain_at(spec: dict, n: int) -> float:
     """The gain at n points of a gain table."""
-    if "n" in spec:
-        return at(spec["n"], spec["gain"], n)
-    return float(spec["gain"])
+    return _table_value(spec, "gain", n)
+
+
+def cut_at(spec: dict, n: int) -> float:
+    """The cut at n points of a gain table (one cut, or a list per size)."""
+    return _table_value(spec, "cut", n)
+
+
+def _table_value(spec: dict, key: str, n: int) -> float:
+    if isinstance(spec[key], list):
+        return at(spec["n"], spec[key], n)
+    return float(spec[key])
+
+
+def describe_cut(spec: dict) -> str:
+    """A gain table's cut in words: "1", or "1 / 0.5 at n = 1024 / 4096" for a list."""
+    if isinstance(spec["cut"], list):
+        return describe(spec["n"], [f"{c:g}" for c in spec["cut"]])
+    return f"{spec['cut']:g}"
 
 
 def describe_gain(spec: dict) -> str:
@@ -52,20 +69,23 @@ def gain_table_problem(spec: Any, field: str, cut_ok: Callable[[Any], bool], cut
                        gain_ok: Callable[[Any], bool], gain_text: str) -> str | None:
     """Why the card's gain table ``field`` is invalid, or None; ``cut_ok`` / ``gain_ok``
     accept a cut / a gain, described by ``cut_text`` / ``gain_text``."""
-    form = (f"'{field}' must be {{\"cut\": C, \"gain\": G}} or {{\"cut\": C, \"n\": "
-            "[sizes], \"gain\": [G per size]}")
+    form = (f"'{field}' must be {{\"cut\": C, \"gain\": G}} or {{\"cut\": C or [C per "
+            "size], \"n\": [sizes], \"gain\": [G per size]}")
     if not isinstance(spec, dict) or set(spec) - {"n"} != {"cut", "gain"}:
         return f"{form}, got {spec!r}"
-    if not cut_ok(spec["cut"]):
-        return f"'{field}' cut must be {cut_text}, got {spec['cut']!r}"
-    gains = spec["gain"]
+    gains, cuts = spec["gain"], spec["cut"]
     if "n" in spec:
         if not (sizes_ok(spec["n"]) and isinstance(gains, list)
                 and len(gains) == len(spec["n"])):
             return (f"'{field}' n and gain must be lists of the same length, n strictly "
                     f"increasing sizes >= 1; got {spec['n']!r}, {gains!r}")
+        if isinstance(cuts, list) and len(cuts) != len(spec["n"]):
+            return (f"'{field}' cut, given per size, must have one value per size in n; "
+                    f"got {cuts!r} for n = {spec['n']!r}")
     else:
         gains = [gains]
+    if not all(cut_ok(c) for c in (cuts if isinstance(cuts, list) and "n" in spec else [cuts])):
+        return f"'{field}' cut must be {cut_text}, got {spec['cut']!r}"
     if not all(gain_ok(g) for g in gains):
         return f"'{field}' gain must be {gain_text}, got {spec['gain']!r}"
     return None

@@ -68,16 +68,18 @@ def set_defaults_main(argv: list[str]) -> int:
                    help="scale the coarse Fourier modes of the solver's starting noise by G "
                         "(> 1: sets vary more at large scales); N:G pairs give G per size "
                         "(linear in log n between them); none: remove")
-    p.add_argument("--coarse-noise-cut", type=float, metavar="C",
+    p.add_argument("--coarse-noise-cut", metavar="C|N:C,N:C,...",
                    help="modes up to C times the grid's Nyquist frequency, 0 < C <= 1 "
-                        "(default 0.25; with --coarse-noise)")
+                        "(default 0.25; with --coarse-noise); N:C pairs give C per size, "
+                        "at the sizes of --coarse-noise's pairs")
     p.add_argument("--even-out", metavar="G|N:G,N:G,...|none",
                    help="shrink each set's density deviations from uniform at large scales "
                         "by the factor 1 - G (G < 0 amplifies them); N:G pairs give G per "
                         "size (linear in log n between them); none: remove")
-    p.add_argument("--even-out-cut", type=float, metavar="C",
+    p.add_argument("--even-out-cut", metavar="C|N:C,N:C,...",
                    help="below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1; "
-                        "with --even-out)")
+                        "with --even-out); N:C pairs give C per size, at the sizes of "
+                        "--even-out's pairs")
     args = p.parse_args(argv)
     coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
     even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
@@ -138,19 +140,27 @@ def set_defaults_main(argv: list[str]) -> int:
     return 0
 
 
-def _gain_arg(value: str | None, cut: float | None, flag: str, default_cut: float):
-    """A card's gain table {"cut": C, "gain": G or "n"/"gain" lists} from ``flag``'s value
-    and its ``-cut`` option, "none", None (not given), or False after an error message."""
+def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float):
+    """A card's gain table {"cut": C or a list, "gain": G or "n"/"gain" lists} from
+    ``flag``'s value and its ``-cut`` option, "none", None (not given), or False after an
+    error message."""
     if cut is not None and (value is None or value == "none"):
         print(f"error: {flag}-cut needs {flag} G or N:G,...", file=sys.stderr)
         return False
     if value is None or value == "none":
         return value
     table = _table_arg(value, "gain", float, flag, "a number", "N:G")
-    if table is None:
+    cuts = default_cut if cut is None else _table_arg(cut, "cut", float, f"{flag}-cut",
+                                                      "a number", "N:C")
+    if table is None or cuts is None:
         return False
-    return {"cut": default_cut if cut is None else cut,
-            **(table if isinstance(table, dict) else {"gain": table})}
+    if isinstance(cuts, dict):  # a cut per size: the gain table's sizes, in its order
+        if not isinstance(table, dict) or cuts["n"] != table["n"]:
+            print(f"error: {flag}-cut N:C pairs need {flag} N:G pairs at the same sizes, "
+                  f"got {cut!r} for {value!r}", file=sys.stderr)
+            return False
+        cuts = cuts["cut"]
+    return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
 
 
 def structure_text(card: dict) -> str:

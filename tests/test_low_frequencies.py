@@ -40,6 +40,22 @@ def test_card_gain_table_and_validation():
                                               "(log-linear) below 1 sqrt(n)")
 
 
+def test_card_cut_per_size():
+    from diffsampler_rt.per_size import cut_at
+    spec = {"cut": [1.0, 1.0, 0.5], "n": [256, 1024, 4096], "gain": [0.1, 0, -0.2]}
+    assert settings_problem(spec) is None
+    assert [cut_at(spec, n) for n in (64, 1024, 2048, 4096, 16384)] == pytest.approx(
+        [1, 1, 0.75, 0.5, 0.5])  # log-linear between the sizes, the end values beyond
+    assert cut_at({"cut": 0.5, "gain": 0.1}, 64) == 0.5
+    assert low_frequencies.describe(spec) == (
+        "gain 0.1 / 0 / -0.2 at n = 256 / 1024 / 4096 (log-linear) below 1 / 1 / 0.5 at "
+        "n = 256 / 1024 / 4096 sqrt(n)")
+    for bad, match in (({**spec, "cut": [1.0, 0.5]}, "one value per size"),
+                       ({**spec, "cut": [1.0, 1.0, 2.5]}, "cut must be"),
+                       ({"cut": [1.0], "gain": 0.1}, "cut must be")):  # a list needs "n"
+        assert match in settings_problem(bad)
+
+
 def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("gbn_fast")
@@ -60,6 +76,21 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys)
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
                                   diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
     assert export_main(["set-defaults", str(path), "--even-out-cut", "0.5"]) == 2
+    # a cut per size, at the gain table's sizes: the model uses the cut at its n
+    assert export_main(["set-defaults", str(path), "--even-out", "64:0,1024:0.3",
+                        "--even-out-cut", "64:1,1024:0.5"]) == 0
+    assert diffsampler_rt.load(path).card["even_out"] == {"cut": [1.0, 0.5], "n": [64, 1024],
+                                                          "gain": [0.0, 0.3]}
+    per_size = diffsampler_rt.generate(path, 1024, 1, seed=4)
+    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
+                        "--even-out-cut", "0.5"]) == 0
+    np.testing.assert_array_equal(per_size, diffsampler_rt.generate(path, 1024, 1, seed=4))
+    for cut in ("64:1,256:0.5", "0.5:x"):
+        assert export_main(["set-defaults", str(path), "--even-out", "64:0,1024:0.3",
+                            "--even-out-cut", cut]) == 2
+    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
+                        "--even-out-cut", "64:1,1024:0.5"]) == 2
+    assert "--even-out-cut N:C pairs need --even-out N:G pairs" in capsys.readouterr().err
     assert export_main(["set-defaults", str(path), "--even-out", "2"]) == 2
     assert "gain must be" in capsys.readouterr().err
     from diffsampler_rt.card import CARD_KEY, parse_card
