@@ -70,7 +70,7 @@ def describe(spec: dict | None) -> str:
     "gain 1.3 / 1.5 at n = 64 / 1024 (log-linear) up to 0.25 x Nyquist"."""
     if not spec:
         return "none"
-    return f"{per_size.describe_gain(spec)} up to {per_size.describe_cut(spec)} x Nyquist"
+    return f"{per_size.describe_gain(spec)} up to {per_size.describe_cut(spec, 'x Nyquist')}"
 
 
 def settings_problem(spec: Any) -> str | None:

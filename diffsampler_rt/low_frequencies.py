@@ -47,7 +47,7 @@ def describe(spec: dict | None) -> str:
     below 1 sqrt(n)"."""
     if not spec:
         return "none"
-    return f"{per_size.describe_gain(spec)} below {per_size.describe_cut(spec)} sqrt(n)"
+    return f"{per_size.describe_gain(spec)} below {per_size.describe_cut(spec, 'sqrt(n)')}"
 
 
 def settings_problem(spec: Any) -> str | None:

@@ -174,7 +174,8 @@ class Model:
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
             ``"even_out"`` (gbn models: their sets' density deviations at large scales
-            shrunk by a smooth move; :mod:`diffsampler_rt.low_frequencies`) and
+            shrunk, or at n = 4096 amplified, by a smooth move;
+            :mod:`diffsampler_rt.low_frequencies`) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
             every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
             that where a structure is imposed the spacing comes before it, so that the

@@ -50,11 +50,12 @@ def _table_value(spec: dict, key: str, n: int) -> float:
     return float(spec[key])
 
 
-def describe_cut(spec: dict) -> str:
-    """A gain table's cut in words: "1", or "1 / 0.5 at n = 1024 / 4096" for a list."""
+def describe_cut(spec: dict, unit: str) -> str:
+    """A gain table's cut in words: "1 sqrt(n)", or "1 / 0.5 sqrt(n) at those sizes" for a
+    list (after :func:`describe_gain`, which names the sizes)."""
     if isinstance(spec["cut"], list):
-        return describe(spec["n"], [f"{c:g}" for c in spec["cut"]])
-    return f"{spec['cut']:g}"
+        return " / ".join(f"{c:g}" for c in spec["cut"]) + f" {unit} at those sizes"
+    return f"{spec['cut']:g} {unit}"
 
 
 def describe_gain(spec: dict) -> str:

@@ -48,8 +48,8 @@ def test_card_cut_per_size():
         [1, 1, 0.75, 0.5, 0.5])  # log-linear between the sizes, the end values beyond
     assert cut_at({"cut": 0.5, "gain": 0.1}, 64) == 0.5
     assert low_frequencies.describe(spec) == (
-        "gain 0.1 / 0 / -0.2 at n = 256 / 1024 / 4096 (log-linear) below 1 / 1 / 0.5 at "
-        "n = 256 / 1024 / 4096 sqrt(n)")
+        "gain 0.1 / 0 / -0.2 at n = 256 / 1024 / 4096 (log-linear) below 1 / 1 / 0.5 sqrt(n) "
+        "at those sizes")
     for bad, match in (({**spec, "cut": [1.0, 0.5]}, "one value per size"),
                        ({**spec, "cut": [1.0, 1.0, 2.5]}, "cut must be"),
                        ({"cut": [1.0], "gain": 0.1}, "cut must be")):  # a list needs "n"
