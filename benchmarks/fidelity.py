@@ -561,8 +561,9 @@ def model_card_text(c: dict) -> str:
             + _structure_text(c)
             + (f"; then sliced-OT {describe_sliced(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
                if c.get("sliced_ot") else "")
-            + (f"; density deviations at large scales scaled by 1 - gain: {describe_even(c['even_out'])} "
-               "(diffsampler_rt.low_frequencies)" if c.get("even_out") else "")
+            + ("; density deviations at large scales scaled by 1 - gain: "
+               f"{describe_even(c['even_out'])} (diffsampler_rt.low_frequencies)"
+               if c.get("even_out") else "")
             + (f"; pairs closer than {describe_spacing(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 

@@ -5,8 +5,9 @@ square, changes under a small displacement u by -div(u) (the continuity equation
 move u = grad psi with laplacian(psi) = (the excess to remove) removes it to first order;
 psi comes from one FFT of the points deposited on a grid of 4 cut sqrt(n) + 8 cells a side
 or more, and u is interpolated back at the points (first order, and approximate: the
-pattern's finer scales alias into the grid's low frequencies a little). On the torus for toroidal models; otherwise on the square mirrored into [0, 2)^2,
-whose periodic extension has no seam, so that no point is pushed across an edge.
+pattern's finer scales alias into the grid's low frequencies a little). On the torus for
+toroidal models; otherwise on the square mirrored into [0, 2)^2, whose periodic extension
+has no seam, so that no point is pushed across an edge.
 
 Two uses:
 
@@ -15,8 +16,9 @@ Two uses:
   power taken out);
 - :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
   "n": [sizes], "gain": [G per size]}``, the cut possibly a list per size too; linear in
-  log n between the sizes, the end values beyond) shrinks a set's own density deviations by 1 - G, for nets whose sets are less
-  even at large scales than their sampler's.
+  log n between the sizes, the end values beyond) shrinks a set's own density deviations
+  by 1 - G, for nets whose sets are less even at large scales than their sampler's (G < 0
+  amplifies them, for nets whose sets are more even).
 """
 from __future__ import annotations
 
