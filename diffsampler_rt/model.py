@@ -13,16 +13,15 @@ import onnxruntime as ort
 from . import _validate
 from ._progress import Progress
 from .card import CARD_KEY, parse_card
-from .coarse_noise import gain_at, shape_noise
+from .coarse_noise import shape_noise
 from .density import warp
 from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .lattice import nearest_rank1_lattice
 from .low_frequencies import even_out
-from .low_frequencies import gain_at as even_gain_at
 from .metadata import WireFormatError, read_metadata
-from .per_size import cut_at
+from .per_size import cut_at, gain_at
 from .schedule import alphas_cumprod, timesteps
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
@@ -256,14 +255,14 @@ class Model:
         coarse = self.card.get("coarse_noise") if structure else None
         shaping = (gain_at(coarse, k * k), cut_at(coarse, k * k)) if coarse else None
         even = self.card.get("even_out") if structure else None
-        evening = (even_gain_at(even, n), cut_at(even, n)) if even else None
+        evening = (gain_at(even, n), cut_at(even, n)) if even else None
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
                             imposed, relattice, spacing, sliced, shaping, evening)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int, shaping: tuple[float, float] | None,
-                evening: tuple[float, float] | None = None):
+                evening: tuple[float, float] | None):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)

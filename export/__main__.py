@@ -64,22 +64,15 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--sliced-ot-step", type=float, metavar="S",
                    help="scale every sliced-OT move by S, 0 < S <= 2 (default 1: the "
                         "sampler's own update; with --sliced-ot)")
-    p.add_argument("--coarse-noise", metavar="G|N:G,N:G,...|none",
-                   help="scale the coarse Fourier modes of the solver's starting noise by G "
-                        "(> 1: sets vary more at large scales); N:G pairs give G per size "
-                        "(linear in log n between them); none: remove")
-    p.add_argument("--coarse-noise-cut", metavar="C|N:C,N:C,...",
-                   help="modes up to C times the grid's Nyquist frequency, 0 < C <= 1 "
-                        "(default 0.25; with --coarse-noise); N:C pairs give C per size, "
-                        "at the sizes of --coarse-noise's pairs")
-    p.add_argument("--even-out", metavar="G|N:G,N:G,...|none",
-                   help="shrink each set's density deviations from uniform at large scales "
-                        "by the factor 1 - G (G < 0 amplifies them); N:G pairs give G per "
-                        "size (linear in log n between them); none: remove")
-    p.add_argument("--even-out-cut", metavar="C|N:C,N:C,...",
-                   help="below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1; "
-                        "with --even-out); N:C pairs give C per size, at the sizes of "
-                        "--even-out's pairs")
+    _gain_table_flags(p, "--coarse-noise",
+                      "scale the coarse Fourier modes of the solver's starting noise by G "
+                      "(> 1: sets vary more at large scales)",
+                      "modes up to C times the grid's Nyquist frequency, 0 < C <= 1 "
+                      "(default 0.25")
+    _gain_table_flags(p, "--even-out",
+                      "shrink each set's density deviations from uniform at large scales "
+                      "by the factor 1 - G (G < 0 amplifies them)",
+                      "below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1")
     args = p.parse_args(argv)
     coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
     even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
@@ -138,6 +131,18 @@ def set_defaults_main(argv: list[str]) -> int:
           f"coarse noise {describe_coarse(card.get('coarse_noise'))}, "
           f"even out {describe_even(card.get('even_out'))}")
     return 0
+
+
+def _gain_table_flags(p: argparse.ArgumentParser, flag: str, gain_help: str,
+                      cut_help: str) -> None:
+    """``flag`` (a card's gain table: G, N:G pairs or none) and ``flag``-cut (C or N:C
+    pairs at the same sizes); ``cut_help`` ends inside its default's parenthesis."""
+    p.add_argument(flag, metavar="G|N:G,N:G,...|none",
+                   help=f"{gain_help}; N:G pairs give G per size (linear in log n between "
+                        "them); none: remove")
+    p.add_argument(f"{flag}-cut", metavar="C|N:C,N:C,...",
+                   help=f"{cut_help}; with {flag}); N:C pairs give C per size, at the sizes "
+                        f"of {flag}'s pairs")
 
 
 def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float):
