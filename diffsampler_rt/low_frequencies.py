@@ -118,11 +118,12 @@ def even_out(points: np.ndarray, gain: float, *, cut: float, torus: bool = False
 
 @lru_cache(maxsize=16)
 def _operator(m: int, fc: float) -> tuple[np.ndarray, ...]:
-    """The real-FFT frequencies of an m x m grid (the last axis holds those >= 0 only), the
-    mask 0 < |f| < fc, the cloud-in-cell transfer function and the Laplacian's symbol:
-    the same for every set of a size, so made once (read-only, shared)."""
+    """The real-FFT frequencies of an m x m grid cropped to the columns 0 <= fy <= fc (the
+    only ones the mask 0 < |f| < fc keeps), the mask, the cloud-in-cell transfer function and
+    the Laplacian's symbol there: the same for every set of a size, so made once (read-only,
+    shared)."""
     fx = (np.fft.fftfreq(m, 1.0 / m))[:, None]
-    fy = (np.fft.rfftfreq(m, 1.0 / m))[None, :]
+    fy = (np.fft.rfftfreq(m, 1.0 / m))[None, :_columns(m, fc)]
     r2 = fx * fx + fy * fy
     low = (r2 > 0) & (r2 < fc * fc)
     taper = (np.sinc(fx / m) * np.sinc(fy / m)) ** 2
@@ -130,6 +131,26 @@ def _operator(m: int, fc: float) -> tuple[np.ndarray, ...]:
     for v in (fx, fy, low, taper, laplacian):
         v.flags.writeable = False
     return fx, fy, low, taper, laplacian
+
+
+def _columns(m: int, fc: float) -> int:
+    """How many of the m x m grid's real-FFT columns (fy = 0, 1, ...) reach the cut fc."""
+    return min(m // 2 + 1, math.floor(fc) + 1)
+
+
+def _low_rfft2(grid: np.ndarray, k: int) -> np.ndarray:
+    """``np.fft.rfft2(grid)[:, :k]``, without transforming the other columns along the first
+    axis (rfft2 is that transform of the last axis's rfft: the same numbers, less work)."""
+    return np.fft.fft(np.fft.rfft(grid, axis=1)[:, :k], axis=0)
+
+
+def _low_irfft2(spectra: np.ndarray, m: int) -> np.ndarray:
+    """``np.fft.irfft2`` over the last two axes of (..., m, k) spectra zero beyond column k
+    (irfft2 is the last axis's irfft of the first's ifft: the zero columns stay zero)."""
+    columns = np.fft.ifft(spectra, axis=-2)
+    padded = np.zeros(spectra.shape[:-1] + (m // 2 + 1,), dtype=columns.dtype)
+    padded[..., :spectra.shape[-1]] = columns
+    return np.fft.irfft(padded, m, axis=-1)
 
 
 def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
@@ -143,17 +164,18 @@ def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
     m = 1 << max(4, math.ceil(math.log2(4 * fc + 8)))  # grid well beyond the cut
     fx, fy, low, taper, laplacian = _operator(m, fc)
     grid_a, base, w = deposit(a, m)
-    diff = np.fft.rfft2(grid_a) / len(a)
+    k = fy.shape[1]
+    diff = _low_rfft2(grid_a, k) / len(a)
     if target is not None:
         b = target if torus else _mirrored(target)
-        diff = diff - np.fft.rfft2(deposit(b, m)[0]) / len(b)
+        diff = diff - _low_rfft2(deposit(b, m)[0], k) / len(b)
     psi = gain * np.where(low, diff / taper, 0) / laplacian
     # the cloud-in-cell weights again, to read the grid back at the points
     corners = [((w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1]),
                 (base[:, 0] + dx) % m, (base[:, 1] + dy) % m) for dx in (0, 1) for dy in (0, 1)]
     u = np.zeros_like(a)
-    for axis, freq in enumerate((fx, fy)):
-        field = np.fft.irfft2(2j * np.pi * freq * psi, s=(m, m)) * m * m
+    fields = _low_irfft2(np.stack([2j * np.pi * freq * psi for freq in (fx, fy)]), m) * m * m
+    for axis, field in enumerate(fields):
         for weight, ix, iy in corners:
             u[:, axis] += weight * field[ix, iy]
     if torus:
