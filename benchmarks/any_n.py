@@ -11,9 +11,12 @@ context each model's figures at the nearest square measured in fidelity.md are q
 Samplers without sets of non-square size (ldbn) are left out, and so are the non-uniform
 models (their references take about a minute a set at n = 1000).
 
-Writes benchmarks/results/any_n.md and any_n.png (spectra at the largest size).
+Writes benchmarks/results/any_n.md and any_n.png (spectra at the largest size). Each
+model's rows are kept in benchmarks/results/any_n/NAME.json: a run rewrites the models it
+measures and reports them next to the kept ones (each section says when it was measured).
 
     python benchmarks/any_n.py [--models gbn_fast sot_fast] [--sizes 200 1000] [--workers 2]
+    python benchmarks/any_n.py --report-only    # any_n.md / any_n.png from the kept rows
 """
 from __future__ import annotations
 
@@ -98,12 +101,26 @@ def nearest_square_row(name: str, n: int) -> tuple[int, dict] | None:
     return int(size), rows[size]
 
 
-def report(results: dict[str, list[dict]], a, out: Path) -> None:
+def store(out: Path, name: str) -> Path:
+    """Where a model's measured rows are kept between runs."""
+    return out / "any_n" / f"{name}.json"
+
+
+def kept(out: Path) -> dict[str, dict]:
+    """Every kept model's record ({"date", "options", "rows"}), in MODELS' order, then the
+    others by name."""
+    paths = sorted((out / "any_n").glob("*.json"))
+    order = {m: i for i, m in enumerate(MODELS)}
+    paths.sort(key=lambda p: (order.get(p.stem, len(order)), p.stem))
+    return {p.stem: json.loads(p.read_text()) for p in paths}
+
+
+def report(records: dict[str, dict], out: Path) -> None:
     lines = [
         "# Sets of any size: fidelity at n that are not perfect squares",
         "",
-        f"`python benchmarks/any_n.py --sets {a.sets} --slow-sets {a.slow_sets}` on "
-        f"{dt.date.today().isoformat()} ({os.cpu_count()} cores). For n not a square the "
+        f"`python benchmarks/any_n.py` ({os.cpu_count()} cores; each model's section says "
+        "when and with which options it was measured). For n not a square the "
         "runtime makes the next square's set, k*k points, and removes k*k - n of them: "
         "blue-noise models (a card with a minimum spacing) by weighted sample elimination, "
         "the most crowded point first, the others at random; then it moves the kept points "
@@ -121,9 +138,12 @@ def report(results: dict[str, list[dict]], a, out: Path) -> None:
         "counts).",
         "",
     ]
-    for name, rows in results.items():
+    for name, record in records.items():
+        rows = record["rows"]
         card = diffsampler_rt.load(name).card
-        lines += [f"## {name}", "", f"sampler `{card['sampler']}`.", "",
+        lines += [f"## {name}", "",
+                  f"sampler `{card['sampler']}`; measured on {record['date']} with "
+                  f"`{record['options']}`.", "",
                   "| n (grid) | sets | sets made by | spectrum MAE (floor) | "
                   + " | ".join(NAMES[k] for k in STATS) + " | gen ms/set | ref ms/set |",
                   "|---|---|---|---|" + "---|" * len(STATS) + "---|---|"]
@@ -147,7 +167,7 @@ def report(results: dict[str, list[dict]], a, out: Path) -> None:
     (out / "any_n.md").write_text("\n".join(lines))
 
 
-def plot(results: dict[str, list[dict]], out: Path) -> None:
+def plot(records: dict[str, dict], out: Path) -> None:
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -155,13 +175,13 @@ def plot(results: dict[str, list[dict]], out: Path) -> None:
     except ImportError:
         print("matplotlib not installed: no plot", file=sys.stderr)
         return
-    names = list(results)
+    names = list(records)
     cols = 4
     rows = -(-len(names) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.2 * rows), squeeze=False)
     x = np.arange(1, 80) * 0.0625
     for ax, name in zip(axes.flat, names):
-        r = max(results[name], key=lambda r: r["n"])
+        r = max(records[name]["rows"], key=lambda r: r["n"])
         ax.plot(x, r["spec_ref"], lw=1.5, label="reference")
         ax.plot(x, r["eliminated"]["spec_gen"], lw=1.2, ls="--", label="thinned")
         ax.plot(x, r["random"]["spec_gen"], lw=0.8, alpha=0.7, label="dropped at random")
@@ -183,23 +203,34 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    p.add_argument("--report-only", action="store_true",
+                   help="rebuild any_n.md / any_n.png from the kept rows, measuring nothing")
     a = p.parse_args()
+    if a.report_only:
+        report(kept(a.out), a.out)
+        plot(kept(a.out), a.out)
+        print(f"wrote {a.out / 'any_n.md'}")
+        return
     for n in a.sizes:
         if math.isqrt(n) ** 2 == n:
             p.error(f"--sizes: {n} is a perfect square (fidelity.py measures those)")
     # what fidelity.reference reads from its options
     a.slow_4096, a.spectrum_sets, a.ref_pool = a.slow_sets, a.sets, None
-    results: dict[str, list[dict]] = {}
-    a.out.mkdir(parents=True, exist_ok=True)
+    for name in a.models:
+        card = diffsampler_rt.load(name).card
+        if card.get("density") or card["sampler"] not in MEASURABLE:
+            p.error(f"--models: {name}'s sampler {card['sampler']!r} is not measured here "
+                    "(no reference sets of non-square size, or a density)")
+    options = (f"--sizes {' '.join(map(str, a.sizes))} --sets {a.sets} "
+               f"--slow-sets {a.slow_sets} --seed {a.seed}")
+    store(a.out, "_").parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.models:
-            card = diffsampler_rt.load(name).card
-            if card.get("density") or card["sampler"] not in MEASURABLE:
-                p.error(f"--models: {name}'s sampler {card['sampler']!r} is not measured here "
-                        "(no reference sets of non-square size, or a density)")
-            results[name] = [measure(pool, name, n, a) for n in a.sizes]
-            report(results, a, a.out)
-    plot(results, a.out)
+            record = {"date": dt.date.today().isoformat(), "options": options,
+                      "rows": [measure(pool, name, n, a) for n in a.sizes]}
+            store(a.out, name).write_text(json.dumps(record))
+            report(kept(a.out), a.out)
+    plot(kept(a.out), a.out)
     print(f"wrote {a.out / 'any_n.md'}")
 
 
