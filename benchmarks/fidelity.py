@@ -177,8 +177,10 @@ def reference(pool, sampler: str, n: int, a):
 
     With ``--ref-pool`` files for this sampler and size, the seed-1 draw and those files are
     pooled and split in halves: A and B are then each half of the pool, all of it used for
-    the spectrum and the statistics. The time per reference set stays the seed-1 draw's
-    (pooled files may have been drawn on another machine).
+    the spectrum and the statistics; with ``--pool-only`` the pool is those files alone
+    (e.g. when the seed-1 sets were used to choose a card's settings). The time per
+    reference set stays the seed-1 draw's (pooled files may have been drawn on another
+    machine, or beside other jobs).
 
     Returns (count, spectrum count, A, B, seconds per reference set, stats A, stats B).
     """
@@ -188,11 +190,13 @@ def reference(pool, sampler: str, n: int, a):
     key = f"{sampler}_n{n}_c{2 * scount}_s1"
     extra = ref_pools(a).get((sampler, n), [])
     if extra:
-        ref = np.concatenate([ref] + [cached_sets(pool, sampler, n, c, s)[0]
-                                      for c, seeds in extra for s in seeds])
+        pooled = [cached_sets(pool, sampler, n, c, s)[0] for c, seeds in extra for s in seeds]
+        only = getattr(a, "pool_only", False)
+        ref = np.concatenate(pooled if only else [ref] + pooled)
         count = scount = len(ref) // 2
         ref = ref[:2 * count]
-        key += "".join(f"+c{c}_s{_seeds_text(seeds)}" for c, seeds in extra)
+        key = (f"{sampler}_n{n}_pool" if only else key) + "".join(
+            f"+c{c}_s{_seeds_text(seeds)}" for c, seeds in extra)
     ref_a, ref_b = ref[:scount], ref[scount:]
     unwarp = UNWARP.get(sampler) or (lambda p: p)
     both = np.concatenate([ref_a[:count], ref_b[:count]])
@@ -400,6 +404,8 @@ def settings(a, sampler: str) -> dict:
              for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
     if pools:
         out["ref_pool"] = pools
+        if getattr(a, "pool_only", False):
+            out["pool_only"] = True
     return out
 
 
@@ -642,6 +648,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
         + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "")
         + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", []))
+        + (" --pool-only" if st.get("pool_only") else "")
         + _stored_option(st.get("stored_reference")) + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
@@ -789,6 +796,9 @@ def main() -> None:
                    help="pool cached reference files of COUNT sets from these seeds (a-b or "
                         "a,b,...) with the seed-1 draw at that size; A and B are its halves "
                         "(repeatable; files missing from the cache are drawn)")
+    p.add_argument("--pool-only", action="store_true",
+                   help="with --ref-pool: the pooled files alone, without the seed-1 draw "
+                        "(when those sets were used to choose a card's settings)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")

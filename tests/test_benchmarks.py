@@ -55,6 +55,12 @@ def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
     assert "| 64 | 5 |" in md and "--ref-pool sobol_owen:64:2:2-3" in md
     ref = tmp_path / "cache" / "reference"
     assert (ref / "sobol_owen_n64_c2_s2.npz").exists() and (ref / "sobol_owen_n64_c2_s3.npz").exists()
+    # --pool-only: the two files alone (4 sets, 2 a side), the option in the report
+    res = subprocess.run(cmd + ["--ref-pool", "sobol_owen:64:2:2-3", "--pool-only"],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "| 64 | 2 |" in md and "--ref-pool sobol_owen:64:2:2-3 --pool-only" in md
     for bad in ("sobol_owen:64:2", "sobol_owen:64:2:1-3", "sobol_owen:x:2:2"):
         res = subprocess.run(cmd + ["--ref-pool", bad], capture_output=True, text=True,
                              cwd=ROOT, env=env, timeout=600)
