@@ -207,8 +207,9 @@ def main() -> None:
                    help="rebuild any_n.md / any_n.png from the kept rows, measuring nothing")
     a = p.parse_args()
     if a.report_only:
-        report(kept(a.out), a.out)
-        plot(kept(a.out), a.out)
+        records = kept(a.out)
+        report(records, a.out)
+        plot(records, a.out)
         print(f"wrote {a.out / 'any_n.md'}")
         return
     for n in a.sizes:
