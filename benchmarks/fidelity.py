@@ -665,7 +665,8 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         "spectrum targets use more sets at n = 1024 for the spectrum (the per-set statistics use the first ones). "
         "With `--ref-pool SAMPLER:N:COUNT:SEEDS`, cached reference files of further seeds join "
         "that size's seed-1 draw and A and B are each half of the pool (the reference's "
-        "time per set is still the seed-1 draw's, made on this machine). With "
+        "time per set is still the seed-1 draw's, made on this machine); with `--pool-only` "
+        "the pool is those files alone (where the seed-1 sets chose a card's settings). With "
         "`--stored-reference` (said in the model's section) the reference side of a row is "
         "the one kept from the model's earlier run, when the reference sets were not at hand "
         "for a re-measurement after a change of the model's card.",
