@@ -331,7 +331,8 @@ def test_any_n_report_runs(tmp_path):
     assert "| 50 (8x8) | 3 | **thinned** |" in md and "| 50 (8x8) | 3 | dropped at random |" in md
     assert "## rank1" in md and (tmp_path / "out" / "any_n.png").stat().st_size > 1000
     # a later run rewrites the models it measures and keeps the others' sections
-    res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "60"] + cmd[7:],
+    rest = ["--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
+    res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "60"] + rest,
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     (tmp_path / "out" / "any_n.md").unlink()
