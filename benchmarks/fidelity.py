@@ -817,6 +817,8 @@ def main() -> None:
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
                    help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
+    if a.pool_only and not a.ref_pool:
+        p.error("--pool-only: no --ref-pool files to measure against")
     bundled = diffsampler_rt.list_models()
     models = [] if a.report_only else (a.models or bundled)
     a.out.mkdir(parents=True, exist_ok=True)

@@ -61,6 +61,9 @@ def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "fidelity.md").read_text()
     assert "| 64 | 2 |" in md and "--ref-pool sobol_owen:64:2:2-3 --pool-only" in md
+    res = subprocess.run(cmd + ["--pool-only"], capture_output=True, text=True, cwd=ROOT,
+                         env=env, timeout=600)
+    assert res.returncode == 2 and "--pool-only: no --ref-pool" in res.stderr
     for bad in ("sobol_owen:64:2", "sobol_owen:64:2:1-3", "sobol_owen:x:2:2"):
         res = subprocess.run(cmd + ["--ref-pool", bad], capture_output=True, text=True,
                              cwd=ROOT, env=env, timeout=600)
