@@ -109,9 +109,9 @@ def store(out: Path, name: str) -> Path:
 def kept(out: Path) -> dict[str, dict]:
     """Every kept model's record ({"date", "options", "rows"}), in MODELS' order, then the
     others by name."""
-    paths = sorted((out / "any_n").glob("*.json"))
     order = {m: i for i, m in enumerate(MODELS)}
-    paths.sort(key=lambda p: (order.get(p.stem, len(order)), p.stem))
+    paths = sorted((out / "any_n").glob("*.json"),
+                   key=lambda p: (order.get(p.stem, len(order)), p.stem))
     return {p.stem: json.loads(p.read_text()) for p in paths}
 
 
