@@ -45,7 +45,7 @@ from diffsampler_rt.card import describe_devices  # noqa: E402
 from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E402
 from diffsampler_rt.low_frequencies import describe as describe_even  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
-                               seed_curve)
+                               reference_path, seed_curve)
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
@@ -180,18 +180,25 @@ def reference(pool, sampler: str, n: int, a):
     the spectrum and the statistics; with ``--pool-only`` the pool is those files alone
     (e.g. when the seed-1 sets were used to choose a card's settings). The time per
     reference set stays the seed-1 draw's (pooled files may have been drawn on another
-    machine, or beside other jobs).
+    machine, or beside other jobs); with ``--pool-only`` and no seed-1 draw cached, the
+    pooled files' own (not drawn just for a time: slow samplers take hours).
 
     Returns (count, spectrum count, A, B, seconds per reference set, stats A, stats B).
     """
     count = ref_count(sampler, n, a.sets, a.slow_sets, a.slow_4096)
     scount = spectrum_count(sampler, n, count, a)
-    ref, per_set, _ = cached_sets(pool, sampler, n, 2 * scount, 1)
-    key = f"{sampler}_n{n}_c{2 * scount}_s1"
     extra = ref_pools(a).get((sampler, n), [])
+    only = bool(extra) and getattr(a, "pool_only", False)
+    key = f"{sampler}_n{n}_c{2 * scount}_s1"
+    if only and not reference_path(sampler, n, 2 * scount, 1).exists():
+        ref = per_set = None  # not drawn just for its time: the pooled files' times stand in
+    else:
+        ref, per_set, _ = cached_sets(pool, sampler, n, 2 * scount, 1)
     if extra:
-        pooled = [cached_sets(pool, sampler, n, c, s)[0] for c, seeds in extra for s in seeds]
-        only = getattr(a, "pool_only", False)
+        files = [cached_sets(pool, sampler, n, c, s) for c, seeds in extra for s in seeds]
+        pooled = [f[0] for f in files]
+        if per_set is None:
+            per_set = sum(len(p) * t for p, t, _ in files) / sum(len(p) for p in pooled)
         ref = np.concatenate(pooled if only else [ref] + pooled)
         count = scount = len(ref) // 2
         ref = ref[:2 * count]
@@ -666,7 +673,8 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         "With `--ref-pool SAMPLER:N:COUNT:SEEDS`, cached reference files of further seeds join "
         "that size's seed-1 draw and A and B are each half of the pool (the reference's "
         "time per set is still the seed-1 draw's, made on this machine); with `--pool-only` "
-        "the pool is those files alone (where the seed-1 sets chose a card's settings). With "
+        "the pool is those files alone (where the seed-1 sets chose a card's settings; the "
+        "time per set is then the pooled files' own where no seed-1 draw is cached). With "
         "`--stored-reference` (said in the model's section) the reference side of a row is "
         "the one kept from the model's earlier run, when the reference sets were not at hand "
         "for a re-measurement after a change of the model's card.",

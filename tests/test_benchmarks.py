@@ -55,12 +55,16 @@ def test_fidelity_pools_reference_files_of_further_seeds(tmp_path):
     assert "| 64 | 5 |" in md and "--ref-pool sobol_owen:64:2:2-3" in md
     ref = tmp_path / "cache" / "reference"
     assert (ref / "sobol_owen_n64_c2_s2.npz").exists() and (ref / "sobol_owen_n64_c2_s3.npz").exists()
-    # --pool-only: the two files alone (4 sets, 2 a side), the option in the report
+    # --pool-only: the two files alone (4 sets, 2 a side), the option in the report; in a
+    # fresh cache the seed-1 draw is not made just for its time per set
+    fresh = {**env, "DIFFSAMPLER_CACHE": str(tmp_path / "fresh")}
     res = subprocess.run(cmd + ["--ref-pool", "sobol_owen:64:2:2-3", "--pool-only"],
-                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+                         capture_output=True, text=True, cwd=ROOT, env=fresh, timeout=600)
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "fidelity.md").read_text()
     assert "| 64 | 2 |" in md and "--ref-pool sobol_owen:64:2:2-3 --pool-only" in md
+    drawn = sorted(p.name for p in (tmp_path / "fresh" / "reference").glob("sobol_owen_n64_c*.npz"))
+    assert drawn == ["sobol_owen_n64_c2_s2.npz", "sobol_owen_n64_c2_s3.npz"]
     res = subprocess.run(cmd + ["--pool-only"], capture_output=True, text=True, cwd=ROOT,
                          env=env, timeout=600)
     assert res.returncode == 2 and "--pool-only: no --ref-pool" in res.stderr
