@@ -17,6 +17,9 @@ measures and reports them next to the kept ones (each section says when it was m
 
     python benchmarks/any_n.py [--models gbn_fast sot_fast] [--sizes 200 1000] [--workers 2]
     python benchmarks/any_n.py --report-only    # any_n.md / any_n.png from the kept rows
+    python benchmarks/any_n.py --models gbn --sizes 1000 --ref-pool gbn:1000:32:2-3
+        # more reference sets: cached files of further seeds pooled with the seed-1 draw
+        # (--pool-only: those alone), as in fidelity.py
 """
 from __future__ import annotations
 
@@ -36,8 +39,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
-from benchmarks.fidelity import (STATS, _fmt_rel, _per_set, _statistic, reference,  # noqa: E402
-                                 set_stats, tolerance)
+from benchmarks.fidelity import (STATS, _fmt_rel, _per_set, _statistic,  # noqa: E402
+                                 add_pool_options, check_pool_options, pool_options_text,
+                                 reference, set_stats, tolerance)
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 MODELS = ("poisson_disk", "poisson_disk_fast", "poisson_disk_torus_fast", "gbn", "gbn_fast",
@@ -203,9 +207,11 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    add_pool_options(p)
     p.add_argument("--report-only", action="store_true",
                    help="rebuild any_n.md / any_n.png from the kept rows, measuring nothing")
     a = p.parse_args()
+    check_pool_options(p, a)
     if a.report_only:
         records = kept(a.out)
         report(records, a.out)
@@ -216,7 +222,7 @@ def main() -> None:
         if math.isqrt(n) ** 2 == n:
             p.error(f"--sizes: {n} is a perfect square (fidelity.py measures those)")
     # what fidelity.reference reads from its options
-    a.slow_4096, a.spectrum_sets, a.ref_pool = a.slow_sets, a.sets, None
+    a.slow_4096, a.spectrum_sets = a.slow_sets, a.sets
     for name in a.models:
         card = diffsampler_rt.load(name).card
         if card.get("density") or card["sampler"] not in MEASURABLE:
@@ -227,7 +233,9 @@ def main() -> None:
     store(a.out, "_").parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.models:
-            record = {"date": dt.date.today().isoformat(), "options": options,
+            sampler = diffsampler_rt.load(name).card["sampler"]
+            record = {"date": dt.date.today().isoformat(),
+                      "options": options + pool_options_text(a, sampler),
                       "rows": [measure(pool, name, n, a) for n in a.sizes]}
             store(a.out, name).write_text(json.dumps(record))
             report(kept(a.out), a.out)

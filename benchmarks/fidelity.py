@@ -157,6 +157,43 @@ def parse_ref_pool(spec: str) -> tuple[str, int, int, tuple[int, ...]]:
     return sampler, n, count, seed_list
 
 
+def add_pool_options(p: argparse.ArgumentParser) -> None:
+    """``--ref-pool`` and ``--pool-only`` (fidelity.py and any_n.py)."""
+    p.add_argument("--ref-pool", type=parse_ref_pool, action="append", metavar="SAMPLER:N:COUNT:SEEDS",
+                   help="pool cached reference files of COUNT sets from these seeds (a-b or "
+                        "a,b,...) with the seed-1 draw at that size; A and B are its halves "
+                        "(repeatable; files missing from the cache are drawn)")
+    p.add_argument("--pool-only", action="store_true",
+                   help="with --ref-pool: the pooled files alone, without the seed-1 draw "
+                        "(when those sets were used to choose a card's settings)")
+
+
+def check_pool_options(p: argparse.ArgumentParser, a) -> None:
+    if a.pool_only and not a.ref_pool:
+        p.error("--pool-only: no --ref-pool files to measure against")
+
+
+def pool_text(st: dict) -> str:
+    """The pool options of kept settings, as typed (empty without)."""
+    return ("".join(f" --ref-pool {q}" for q in st.get("ref_pool", []))
+            + (" --pool-only" if st.get("pool_only") else ""))
+
+
+def pool_options_text(a, sampler: str) -> str:
+    """The pool options of a run that concern ``sampler``, as typed (empty without)."""
+    return pool_text(settings_pools(a, sampler))
+
+
+def settings_pools(a, sampler: str) -> dict:
+    """``{"ref_pool": [...], "pool_only": True}`` for this sampler's pools, or {}."""
+    # only this sampler's pools: another model's run need not repeat them
+    pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
+             for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
+    if not pools:
+        return {}
+    return {"ref_pool": pools, **({"pool_only": True} if getattr(a, "pool_only", False) else {})}
+
+
 def ref_pools(a) -> dict[tuple[str, int], list[tuple[int, tuple[int, ...]]]]:
     """The extra reference files of ``--ref-pool``, by (sampler, n)."""
     out: dict[tuple[str, int], list] = {}
@@ -406,14 +443,7 @@ def settings(a, sampler: str) -> dict:
     source = getattr(a, "stored_reference", None)
     if source:
         out["stored_reference"] = source  # True: the model's own kept run
-    # only this sampler's pools: another model's run need not repeat them
-    pools = [f"{sampler}:{n}:{c}:{_seeds_text(seeds)}"
-             for (s, n), files in ref_pools(a).items() if s == sampler for c, seeds in files]
-    if pools:
-        out["ref_pool"] = pools
-        if getattr(a, "pool_only", False):
-            out["pool_only"] = True
-    return out
+    return {**out, **settings_pools(a, sampler)}
 
 
 def _jsonable(v):
@@ -654,9 +684,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"
         + (f" --gen-sets {st['gen_sets']}" if st.get("gen_sets") else "")
-        + "".join(f" --ref-pool {q}" for q in st.get("ref_pool", []))
-        + (" --pool-only" if st.get("pool_only") else "")
-        + _stored_option(st.get("stored_reference")) + f"` on {d}"
+        + pool_text(st) + _stored_option(st.get("stored_reference")) + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
         "# Fidelity of the bundled models vs their reference samplers",
@@ -801,13 +829,7 @@ def main() -> None:
     p.add_argument("--gen-sets", type=int, default=0,
                    help="generate at least this many sets per size (default: as many as the "
                         "reference side)")
-    p.add_argument("--ref-pool", type=parse_ref_pool, action="append", metavar="SAMPLER:N:COUNT:SEEDS",
-                   help="pool cached reference files of COUNT sets from these seeds (a-b or "
-                        "a,b,...) with the seed-1 draw at that size; A and B are its halves "
-                        "(repeatable; files missing from the cache are drawn)")
-    p.add_argument("--pool-only", action="store_true",
-                   help="with --ref-pool: the pooled files alone, without the seed-1 draw "
-                        "(when those sets were used to choose a card's settings)")
+    add_pool_options(p)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1, help="seed of the generated sets")
     p.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
@@ -825,8 +847,7 @@ def main() -> None:
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
                    help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
-    if a.pool_only and not a.ref_pool:
-        p.error("--pool-only: no --ref-pool files to measure against")
+    check_pool_options(p, a)
     bundled = diffsampler_rt.list_models()
     models = [] if a.report_only else (a.models or bundled)
     a.out.mkdir(parents=True, exist_ok=True)

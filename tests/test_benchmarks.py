@@ -337,9 +337,11 @@ def test_any_n_report_runs(tmp_path):
     md = (tmp_path / "out" / "any_n.md").read_text()
     assert "| 50 (8x8) | 3 | **thinned** |" in md and "| 50 (8x8) | 3 | dropped at random |" in md
     assert "## rank1" in md and (tmp_path / "out" / "any_n.png").stat().st_size > 1000
-    # a later run rewrites the models it measures and keeps the others' sections
+    # a later run rewrites the models it measures and keeps the others' sections; its
+    # pooled reference files join the seed-1 draw (6 + 4 sets: 5 a side)
     rest = ["--sets", "3", "--workers", "1", "--out", str(tmp_path / "out")]
-    res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "60"] + rest,
+    res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "60",
+                                    "--ref-pool", "rank1:60:2:2-3"] + rest,
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     (tmp_path / "out" / "any_n.md").unlink()
@@ -349,9 +351,11 @@ def test_any_n_report_runs(tmp_path):
     md = (tmp_path / "out" / "any_n.md").read_text()
     owen, rank1 = md.split("## sobol_owen_fast")[1].split("## rank1")
     assert "| 50 (8x8) | 3 | **thinned** |" in owen and "--sizes 50 --sets 3" in owen
-    assert "| 60 (8x8) | 3 | **thinned** |" in rank1 and "| 50 (8x8)" not in rank1
+    assert "| 60 (8x8) | 5 | **thinned** |" in rank1 and "| 50 (8x8)" not in rank1
+    assert "--ref-pool rank1:60:2:2-3" in rank1 and "--ref-pool" not in owen
     for bad, match in ((["--sizes", "64"], "64 is a perfect square"),
-                       (["--models", "ldbn"], "not measured here")):
+                       (["--models", "ldbn"], "not measured here"),
+                       (["--pool-only"], "--pool-only: no --ref-pool")):
         res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "50"] + bad,
                              capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
         assert res.returncode == 2 and match in res.stderr
