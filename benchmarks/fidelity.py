@@ -169,6 +169,7 @@ def add_pool_options(p: argparse.ArgumentParser) -> None:
 
 
 def check_pool_options(p: argparse.ArgumentParser, a) -> None:
+    """Refuse ``--pool-only`` without ``--ref-pool`` (one line, exit 2)."""
     if a.pool_only and not a.ref_pool:
         p.error("--pool-only: no --ref-pool files to measure against")
 
