@@ -40,8 +40,8 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import (STATS, _fmt_rel, _per_set, _statistic,  # noqa: E402
-                                 add_pool_options, check_pool_options, pool_options_text,
-                                 reference, set_stats, tolerance)
+                                 add_pool_options, check_pool_options, pool_text,
+                                 reference, set_stats, settings_pools, tolerance)
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 MODELS = ("poisson_disk", "poisson_disk_fast", "poisson_disk_torus_fast", "gbn", "gbn_fast",
@@ -236,7 +236,7 @@ def main() -> None:
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.models:
             record = {"date": dt.date.today().isoformat(),
-                      "options": options + pool_options_text(a, samplers[name]),
+                      "options": options + pool_text(settings_pools(a, samplers[name])),
                       "rows": [measure(pool, name, n, a) for n in a.sizes]}
             store(a.out, name).write_text(json.dumps(record))
             report(kept(a.out), a.out)

@@ -180,11 +180,6 @@ def pool_text(st: dict) -> str:
             + (" --pool-only" if st.get("pool_only") else ""))
 
 
-def pool_options_text(a, sampler: str) -> str:
-    """The pool options of a run that concern ``sampler``, as typed (empty without)."""
-    return pool_text(settings_pools(a, sampler))
-
-
 def settings_pools(a, sampler: str) -> dict:
     """``{"ref_pool": [...], "pool_only": True}`` for this sampler's pools, or {}."""
     # only this sampler's pools: another model's run need not repeat them
@@ -234,9 +229,9 @@ def reference(pool, sampler: str, n: int, a):
         ref, per_set, _ = cached_sets(pool, sampler, n, 2 * scount, 1)
     if extra:
         files = [cached_sets(pool, sampler, n, c, s) for c, seeds in extra for s in seeds]
-        pooled = [f[0] for f in files]
-        if per_set is None:
-            per_set = sum(len(p) * t for p, t, _ in files) / sum(len(p) for p in pooled)
+        pooled = [pts for pts, _, _ in files]
+        if per_set is None:  # the pool's mean time per set
+            per_set = sum(len(pts) * t for pts, t, _ in files) / sum(map(len, pooled))
         ref = np.concatenate(pooled if only else [ref] + pooled)
         count = scount = len(ref) // 2
         ref = ref[:2 * count]
