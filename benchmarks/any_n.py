@@ -42,6 +42,7 @@ import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import (STATS, _fmt_rel, _per_set, _statistic,  # noqa: E402
                                  add_pool_options, check_pool_options, pool_text,
                                  reference, set_stats, settings_pools, tolerance)
+from diffsampler_rt.low_frequencies import RESTORE_CUT  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 MODELS = ("poisson_disk", "poisson_disk_fast", "poisson_disk_torus_fast", "gbn", "gbn_fast",
@@ -119,6 +120,16 @@ def kept(out: Path) -> dict[str, dict]:
     return {p.stem: json.loads(p.read_text()) for p in paths}
 
 
+def _restore_text(card: dict, record: dict) -> str:
+    """How far the measured run restored the thinned sets' large scales (records from before
+    the card field have the runtime's default, which was the only cut then)."""
+    if card.get("structure") == "rank1_lattice":  # replaced by a lattice, not restored
+        return ""
+    cut = record.get("restore_cut", RESTORE_CUT)
+    source = "the card's `restore_cut`" if cut != RESTORE_CUT else "the runtime's default"
+    return f"thinned sets restored below {cut:g} sqrt(n) ({source}); "
+
+
 def report(records: dict[str, dict], out: Path) -> None:
     lines = [
         "# Sets of any size: fidelity at n that are not perfect squares",
@@ -146,8 +157,8 @@ def report(records: dict[str, dict], out: Path) -> None:
         rows = record["rows"]
         card = diffsampler_rt.load(name).card
         lines += [f"## {name}", "",
-                  f"sampler `{card['sampler']}`; measured on {record['date']} with "
-                  f"`{record['options']}`.", "",
+                  f"sampler `{card['sampler']}`; {_restore_text(card, record)}measured on "
+                  f"{record['date']} with `{record['options']}`.", "",
                   "| n (grid) | sets | sets made by | spectrum MAE (floor) | "
                   + " | ".join(NAMES[k] for k in STATS) + " | gen ms/set | ref ms/set |",
                   "|---|---|---|---|" + "---|" * len(STATS) + "---|---|"]
@@ -235,8 +246,10 @@ def main() -> None:
     store(a.out, "_").parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.models:
+            card = diffsampler_rt.load(name).card
             record = {"date": dt.date.today().isoformat(),
                       "options": options + pool_text(settings_pools(a, samplers[name])),
+                      "restore_cut": card.get("restore_cut", RESTORE_CUT),
                       "rows": [measure(pool, name, n, a) for n in a.sizes]}
             store(a.out, name).write_text(json.dumps(record))
             report(kept(a.out), a.out)

@@ -12,6 +12,7 @@ from . import per_size
 from .coarse_noise import settings_problem as coarse_problem
 from .density import check_table
 from .errors import ModelFormatError
+from .low_frequencies import restore_cut_problem
 from .low_frequencies import settings_problem as even_problem
 from .schedule import betas
 from .sliced_ot import settings_problem as sliced_problem
@@ -117,6 +118,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "even_out" in card and (problem := even_problem(card["even_out"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
+    if "restore_cut" in card and (problem := restore_cut_problem(card["restore_cut"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "min_spacing" in card and (problem := spacing_problem(card["min_spacing"])):
         raise ModelFormatError(f"{source}: {problem}")

@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from .low_frequencies import restore_low_frequencies
+from .low_frequencies import RESTORE_CUT, restore_low_frequencies
 from .spacing import close_pairs
 
 #: the weight's exponent (Yuksel's alpha)
@@ -89,9 +89,11 @@ def eliminate(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
 
 
 def thin(points: np.ndarray, n: int, *, torus: bool = False,
-         rngs: list[np.random.Generator] | None = None) -> np.ndarray:
+         rngs: list[np.random.Generator] | None = None,
+         cut: float = RESTORE_CUT) -> np.ndarray:
     """:func:`eliminate` down to ``n`` points, or with ``rngs`` (one generator per set) drop
-    points at random, then :func:`restore_low_frequencies` from each set's full one: what
+    points at random, then :func:`restore_low_frequencies` from each set's full one (below
+    ``cut`` sqrt(n); the runtime passes a card's ``"restore_cut"``): what
     the runtime does at an n that is not a square (blue-noise models, whose card keeps a
     minimum spacing, lose their most crowded points; the others, whose samplers put points
     close together too, lose points at random, which keeps that).
@@ -118,8 +120,9 @@ def thin(points: np.ndarray, n: int, *, torus: bool = False,
     if kept.shape == full.shape:
         return kept
     if full.ndim == 2:
-        return restore_low_frequencies(kept, full, torus=torus)
-    return np.stack([restore_low_frequencies(k, f, torus=torus) for k, f in zip(kept, full)])
+        return restore_low_frequencies(kept, full, torus=torus, cut=cut)
+    return np.stack([restore_low_frequencies(k, f, torus=torus, cut=cut)
+                     for k, f in zip(kept, full)])
 
 
 def _check_n(n: object, m: int) -> None:

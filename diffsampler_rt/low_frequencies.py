@@ -13,7 +13,8 @@ Two uses:
 
 - :func:`restore_low_frequencies`: a set thinned from a bigger one
   (:mod:`diffsampler_rt.elimination`) gets the bigger set's large scales back (its holes'
-  power taken out);
+  power taken out), below RESTORE_CUT sqrt(n) or a card's ``"restore_cut"`` (GBN's nets,
+  whose sets are even up to their blue-noise peak, restore up to it: 1);
 - :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
   "n": [sizes], "gain": [G per size]}``, the cut possibly a list per size too; linear in
   log n between the sizes, the end values beyond) shrinks a set's own density deviations
@@ -32,7 +33,9 @@ from . import per_size
 from ._cic import deposit
 
 #: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
-#: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings)
+#: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings),
+#: unless a card says ``"restore_cut"``: higher suits sets even up to a blue-noise peak
+#: (GBN), not those with their sampler's white-noise power there (Poisson disk)
 RESTORE_CUT = 0.25
 #: the most an ``"even_out"`` card may ask for: gains in [-MAX_GAIN, MAX_GAIN], cuts up to
 #: MAX_CUT sqrt(n) (beyond the blue-noise peak the move would reshape the pattern itself)
@@ -50,6 +53,13 @@ def describe(spec: dict | None) -> str:
     if not spec:
         return "none"
     return f"{per_size.describe_gain(spec)} below {per_size.describe_cut(spec, 'sqrt(n)')}"
+
+
+def restore_cut_problem(value: Any) -> str | None:
+    """Why a card's ``"restore_cut"`` value is invalid, or None."""
+    if per_size.finite_number(value) and 0 < value <= MAX_CUT:
+        return None
+    return f"'restore_cut' must be a number in (0, {MAX_CUT:g}], got {value!r}"
 
 
 def settings_problem(spec: Any) -> str | None:

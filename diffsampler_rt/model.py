@@ -19,7 +19,7 @@ from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
 from .lattice import nearest_rank1_lattice
-from .low_frequencies import even_out
+from .low_frequencies import RESTORE_CUT, even_out
 from .metadata import WireFormatError, read_metadata
 from .per_size import cut_at, gain_at
 from .schedule import alphas_cumprod, timesteps
@@ -174,7 +174,9 @@ class Model:
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
             ``"even_out"`` (gbn models: their sets' density deviations at large scales
             shrunk, or at n = 4096 amplified, by a smooth move;
-            :mod:`diffsampler_rt.low_frequencies`) and
+            :mod:`diffsampler_rt.low_frequencies`), ``"restore_cut"`` (GBN models: where n
+            is not a square, the thinned set's density restored from the full set's up to
+            that many sqrt(n), 1, instead of the runtime's 0.25) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
             every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
             that where a structure is imposed the spacing comes before it, so that the
@@ -184,7 +186,7 @@ class Model:
             of the solver's starting noise, so that the sets vary at large scales as
             much as the sampler's (:mod:`diffsampler_rt.coarse_noise`).
             ``False`` returns the network's sets as decoded, from white noise (thinned to
-            n points where n is not a square).
+            n points where n is not a square, restored below 0.25 sqrt(n)).
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
             So is a toroidal model's shift: a net with circular padding (``"padding":
@@ -256,13 +258,16 @@ class Model:
         shaping = (gain_at(coarse, k * k), cut_at(coarse, k * k)) if coarse else None
         even = self.card.get("even_out") if structure else None
         evening = (gain_at(even, n), cut_at(even, n)) if even else None
+        # a thinned set's large scales restored from its full one up to this (a card's own
+        # cut is a tuning like the ones above; without them the runtime's default)
+        restore = self.card.get("restore_cut", RESTORE_CUT) if structure else RESTORE_CUT
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, relattice, spacing, sliced, shaping, evening)
+                            imposed, relattice, spacing, sliced, shaping, evening, restore)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int, shaping: tuple[float, float] | None,
-                evening: tuple[float, float] | None):
+                evening: tuple[float, float] | None, restore: float):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -308,7 +313,8 @@ class Model:
             if relattice:  # n not a square: the thinned set's nearest lattice of n points
                 pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
             elif n < k * k:  # blue noise: the k*k - n most crowded points go; else at random
-                pts = thin(pts, n, torus=toroidal, rngs=None if crowded_first else sub)
+                pts = thin(pts, n, torus=toroidal, rngs=None if crowded_first else sub,
+                           cut=restore)
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))

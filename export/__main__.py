@@ -5,7 +5,7 @@
 [--structure-guidance L] [--structure-sides K,K,...]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
-[--even-out G|N:G,...|none [--even-out-cut C]]``:
+[--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]``:
 change the sampling defaults in an exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
@@ -73,6 +73,10 @@ def set_defaults_main(argv: list[str]) -> int:
                       "shrink each set's density deviations from uniform at large scales "
                       "by the factor 1 - G (G < 0 amplifies them)",
                       "below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1")
+    p.add_argument("--restore-cut", metavar="C|none",
+                   help="where n is not a square, restore the thinned set's density from the "
+                        "full set's below C sqrt(n), 0 < C <= 2 (none: the runtime's "
+                        "default, 0.25)")
     args = p.parse_args(argv)
     coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
     even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
@@ -106,9 +110,18 @@ def set_defaults_main(argv: list[str]) -> int:
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
         if spacing is None:
             return 2
+    restore = args.restore_cut
+    if restore is not None and restore != "none":
+        try:
+            restore = float(restore)
+        except ValueError:
+            print(f"error: --restore-cut must be a number or none, got {restore!r}",
+                  file=sys.stderr)
+            return 2
     if _missing(args.model):
         return 2
     from diffsampler_rt.coarse_noise import describe as describe_coarse
+    from diffsampler_rt.low_frequencies import RESTORE_CUT
     from diffsampler_rt.low_frequencies import describe as describe_even
     from diffsampler_rt.sliced_ot import describe as describe_sliced
     from diffsampler_rt.spacing import describe as describe_spacing
@@ -120,7 +133,8 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure_min_side=args.structure_min_side,
                             structure_guidance=args.structure_guidance,
                             structure_sides=sides, sliced_ot=sliced,
-                            min_spacing=spacing, coarse_noise=coarse, even_out=even)
+                            min_spacing=spacing, coarse_noise=coarse, even_out=even,
+                            restore_cut=restore)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -129,7 +143,8 @@ def set_defaults_main(argv: list[str]) -> int:
           f"sliced OT {describe_sliced(card.get('sliced_ot'))}, "
           f"min spacing {describe_spacing(card.get('min_spacing'))}, "
           f"coarse noise {describe_coarse(card.get('coarse_noise'))}, "
-          f"even out {describe_even(card.get('even_out'))}")
+          f"even out {describe_even(card.get('even_out'))}, "
+          f"restore cut {card.get('restore_cut', RESTORE_CUT):g} sqrt(n)")
     return 0
 
 

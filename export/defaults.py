@@ -48,12 +48,14 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
-                 even_out: dict | str | None = None) -> dict:
+                 even_out: dict | str | None = None,
+                 restore_cut: float | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
-    ``min_spacing`` / ``coarse_noise`` / ``even_out`` of the card in ``path`` (``"none"``
-    removes a structure, with its three settings, a sliced-OT polish, a spacing, a noise gain
-    or an evening-out); returns the card."""
+    ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` of the card in
+    ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT polish, a
+    spacing, a noise gain, an evening-out or a restore cut, which then is the runtime's
+    default); returns the card."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -91,6 +93,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card.pop("even_out", None)
         elif even_out is not None:
             card["even_out"] = even_out
+        if restore_cut == "none":
+            card.pop("restore_cut", None)
+        elif restore_cut is not None:
+            card["restore_cut"] = restore_cut
         if min_spacing == "none":
             card.pop("min_spacing", None)
         elif min_spacing is not None:

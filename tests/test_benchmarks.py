@@ -353,6 +353,9 @@ def test_any_n_report_runs(tmp_path):
     assert "| 50 (8x8) | 3 | **thinned** |" in owen and "--sizes 50 --sets 3" in owen
     assert "| 60 (8x8) | 5 | **thinned** |" in rank1 and "| 50 (8x8)" not in rank1
     assert "--ref-pool rank1:60:2:2-3" in rank1 and "--ref-pool" not in owen
+    # how far the thinned sets were restored (a lattice model's are replaced instead)
+    assert "thinned sets restored below 0.25 sqrt(n) (the runtime's default)" in owen
+    assert "restored below" not in rank1
     for bad, match in ((["--sizes", "64"], "64 is a perfect square"),
                        (["--models", "ldbn"], "not measured here"),
                        (["--pool-only"], "--pool-only: no --ref-pool")):

@@ -144,6 +144,22 @@ def test_thinning_holes_are_evened_out_at_large_scales(torus):
     np.testing.assert_array_equal(elimination.thin(full, 1024, torus=torus), full)
 
 
+def test_a_higher_restore_cut_takes_out_the_holes_power_up_to_it():
+    # the default cut restores only the largest scales; a card's cut of 1 (GBN's models) also
+    # takes out the holes' power above that (here below 0.5 sqrt(n): 1 sits on this set's
+    # spectral peak), where an even set has little
+    rng = np.random.default_rng(6)
+    g = (np.stack(np.meshgrid(np.arange(15), np.arange(15)), -1).reshape(-1, 2) + 0.5) / 15
+    full = g + rng.uniform(-0.1, 0.1, g.shape) / 15
+    kept = eliminate(full, 200)
+    low = elimination.thin(full, 200)
+    high = elimination.thin(full, 200, cut=1.0)
+    np.testing.assert_array_equal(high, elimination.restore_low_frequencies(kept, full, cut=1.0))
+    np.testing.assert_array_equal(low, elimination.restore_low_frequencies(kept, full))
+    assert low_power(high, 0.5) < 0.5 * low_power(low, 0.5)
+    assert low_power(low, 0.5) < low_power(kept, 0.5)
+
+
 def test_thinned_sets_keep_the_samplers_large_scale_character():
     # white noise keeps its white-noise power at large scales: the restore aims at the
     # full set's own density, not at an even one

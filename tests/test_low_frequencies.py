@@ -99,5 +99,40 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys)
         parse_card({CARD_KEY: json.dumps(bad)}, "m.onnx")
 
 
+def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
+    from export.__main__ import main as export_main
+    src = diffsampler_rt.model.resolve("gbn_fast")
+    path = tmp_path / "m.onnx"
+    shutil.copy(src, path)
+    assert export_main(["set-defaults", str(path), "--restore-cut", "none"]) == 0
+    assert "restore cut 0.25 sqrt(n)" in capsys.readouterr().out
+    assert "restore_cut" not in diffsampler_rt.load(path).card
+    plain = diffsampler_rt.generate(path, 200, 4, seed=3)
+    square = diffsampler_rt.generate(path, 256, 1, seed=3)
+    unstructured = diffsampler_rt.generate(path, 200, 2, seed=3, structure=False)
+    assert export_main(["set-defaults", str(path), "--restore-cut", "1"]) == 0
+    assert "restore cut 1 sqrt(n)" in capsys.readouterr().out
+    assert diffsampler_rt.load(path).card["restore_cut"] == 1.0
+    restored = diffsampler_rt.generate(path, 200, 4, seed=3)
+    assert restored.shape == (4, 200, 2) and ((restored >= 0) & (restored < 1)).all()
+    assert not np.array_equal(restored, plain)
+    # more of the holes' power below the blue-noise peak goes
+    assert (np.mean([low_power(p, 0.5) for p in restored])
+            < 0.5 * np.mean([low_power(p, 0.5) for p in plain]))
+    # square sizes are not thinned: unchanged; structure=False thins with the default cut
+    np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 1, seed=3), square)
+    np.testing.assert_array_equal(diffsampler_rt.generate(path, 200, 2, seed=3, structure=False),
+                                  unstructured)
+    for bad in ("0", "2.5", "nan", "x"):
+        assert export_main(["set-defaults", str(path), "--restore-cut", bad]) == 2
+        assert bad in capsys.readouterr().err
+    assert diffsampler_rt.load(path).card["restore_cut"] == 1.0  # left as it was
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = diffsampler_rt.load(path).card
+    for bad in (True, "1", 0, -1.0, 3.0):
+        with pytest.raises(ModelFormatError, match="'restore_cut' must be a number in"):
+            parse_card({CARD_KEY: json.dumps({**card, "restore_cut": bad})}, "m.onnx")
+
+
 def test_docstring_examples():
     assert doctest.testmod(low_frequencies).failed == 0
