@@ -124,8 +124,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--no-structure", action="store_true",
                    help="return the network's sets as decoded: no net, n-rooks or lattice "
                         "structure (sobol_owen, ldbn, rank1, lattice), no sliced-OT polish "
-                        "(SOT models), no minimum spacing (blue-noise models), white "
-                        "starting noise where the card shapes it (ldbn, sobol_owen)")
+                        "(SOT models), no evening out at large scales (GBN, Poisson "
+                        "disk), no minimum spacing (blue-noise models), white starting "
+                        "noise where the card shapes it (ldbn, sobol_owen), thinned sets "
+                        "restored with the runtime's default cut (not the card's)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
