@@ -428,6 +428,12 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
         row.setdefault("measured", {"date": old["date"], "settings": old["settings"],
                                     "model_sha256": old["model_sha256"]})
         rows[n] = row
+    if rows and not r["rows"]:
+        # nothing measured now (``--sizes`` with no size: the file changed where no square
+        # size's sets do, e.g. a card's restore cut): the plot's example sets at the first
+        n = min(rows)
+        rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
+                   "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}
     rows.update(r["rows"])
     return {**r, "rows": dict(sorted(rows.items()))}
 
@@ -621,13 +627,16 @@ def _taken_over(r: dict) -> list[str]:
     other = [f"n = {', '.join(map(str, ns))} on {d} with an earlier file of this model "
              f"(sha256 {h[:12]}...)" for (d, h), ns in sorted(by_run.items())
              if h != r["model_sha256"]]
-    text = f"Measured: n = {', '.join(map(str, new))} on {r['date']} with the current file"
+    parts = [f"n = {', '.join(map(str, new))} on {r['date']} with the current file"] if new else []
     if same:
-        text += "; " + "; ".join(same) + " with the same file"
+        parts.append("; ".join(same) + " with the same file")
     if other:
-        text += ("; " + "; ".join(other) + ", whose generated sets the current file reproduces "
-                 f"(the first 4 sets' minimum distances agree to {REPRODUCE_RTOL:.0e})".replace("e-0", "e-"))
-    return ["", text + " (`--merge`)."]
+        parts.append("; ".join(other) + ", whose generated sets the current file reproduces "
+                     f"(the first 4 sets' minimum distances agree to {REPRODUCE_RTOL:.0e})"
+                     .replace("e-0", "e-"))
+    if not new:  # every row kept: the file was checked on r["date"]
+        parts[-1] += f", checked on {r['date']}"
+    return ["", "Measured: " + "; ".join(parts) + " (`--merge`)."]
 
 
 def _stored_note(r: dict) -> list[str]:
@@ -832,7 +841,8 @@ def main() -> None:
     p.add_argument("--merge", action="store_true",
                    help="keep the model's earlier rows at the sizes not given, where the "
                         "current file reproduces their sets (e.g. after a re-export that "
-                        "only changes big grids)")
+                        "only changes big grids; with --sizes and no size, every row: after "
+                        "a card change that no square size's sets show)")
     p.add_argument("--stored-reference", nargs="?", const=True, default=None, metavar="MODEL",
                    help="measure the generated sets against the reference figures kept "
                         "from the model's last run (its fidelity/<model>.json), or from "
@@ -844,6 +854,8 @@ def main() -> None:
                    help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
     check_pool_options(p, a)
+    if not a.sizes and not (a.merge or a.report_only):
+        p.error("--sizes: no size given (with --merge: keep every row the file reproduces)")
     bundled = diffsampler_rt.list_models()
     models = [] if a.report_only else (a.models or bundled)
     a.out.mkdir(parents=True, exist_ok=True)

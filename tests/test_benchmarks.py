@@ -30,6 +30,17 @@ def test_fidelity_report_runs(tmp_path):
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "fidelity.md").read_text()
     assert "| 64 | 3 |" in md and "| 256 | 3 |" in md and "n = 64 in an earlier run on " in md
+    # no size given: every kept row re-checked and kept (after a card change that no square
+    # size's sets show), the plot's examples made anew; without --merge that is refused
+    res = subprocess.run(merge[:4] + ["--sizes"] + merge[6:], capture_output=True, text=True,
+                         cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "| 64 | 3 |" in md and "| 256 | 3 |" in md
+    assert "Measured: n = 64, 256 in an earlier run on " in md and "n =  " not in md
+    res = subprocess.run(merge[:4] + ["--sizes", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 2 and "no size given" in res.stderr
     # a kept row the current file does not reproduce is refused, not merged
     kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
     r = json.loads(kept.read_text())
