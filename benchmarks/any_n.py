@@ -234,10 +234,11 @@ def main() -> None:
             p.error(f"--sizes: {n} is a perfect square (fidelity.py measures those)")
     # what fidelity.reference reads from its options
     a.slow_4096, a.spectrum_sets = a.slow_sets, a.sets
-    samplers = {}
+    samplers, restore_cuts = {}, {}
     for name in a.models:
         card = diffsampler_rt.load(name).card
         samplers[name] = card["sampler"]
+        restore_cuts[name] = card.get("restore_cut", RESTORE_CUT)
         if card.get("density") or card["sampler"] not in MEASURABLE:
             p.error(f"--models: {name}'s sampler {card['sampler']!r} is not measured here "
                     "(no reference sets of non-square size, or a density)")
@@ -246,10 +247,9 @@ def main() -> None:
     store(a.out, "_").parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         for name in a.models:
-            card = diffsampler_rt.load(name).card
             record = {"date": dt.date.today().isoformat(),
                       "options": options + pool_text(settings_pools(a, samplers[name])),
-                      "restore_cut": card.get("restore_cut", RESTORE_CUT),
+                      "restore_cut": restore_cuts[name],
                       "rows": [measure(pool, name, n, a) for n in a.sizes]}
             store(a.out, name).write_text(json.dumps(record))
             report(kept(a.out), a.out)

@@ -430,7 +430,8 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
         rows[n] = row
     if rows and not r["rows"]:
         # nothing measured now (``--sizes`` with no size: the file changed where no square
-        # size's sets do, e.g. a card's restore cut): the plot's example sets at the first
+        # size's sets do, e.g. a card's restore cut): the plot's example sets, made at the
+        # smallest size
         n = min(rows)
         rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
                    "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}

@@ -14,7 +14,7 @@ Two uses:
 - :func:`restore_low_frequencies`: a set thinned from a bigger one
   (:mod:`diffsampler_rt.elimination`) gets the bigger set's large scales back (its holes'
   power taken out), below RESTORE_CUT sqrt(n) or a card's ``"restore_cut"`` (GBN's nets,
-  whose sets are even up to their blue-noise peak, restore up to it: 1);
+  whose sets are even up to their blue-noise peak, restore up to it, 1; sot / sot_fast 0.4);
 - :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
   "n": [sizes], "gain": [G per size]}``, the cut possibly a list per size too; linear in
   log n between the sizes, the end values beyond) shrinks a set's own density deviations

@@ -172,11 +172,11 @@ class Model:
             :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
-            ``"even_out"`` (gbn models: their sets' density deviations at large scales
-            shrunk, or at n = 4096 amplified, by a smooth move;
-            :mod:`diffsampler_rt.low_frequencies`), ``"restore_cut"`` (GBN models: where n
-            is not a square, the thinned set's density restored from the full set's up to
-            that many sqrt(n), 1, instead of the runtime's 0.25) and
+            ``"even_out"`` (GBN, SOT students and, at n = 4096, Poisson-disk models: their
+            sets' density deviations at large scales shrunk, or amplified, by a smooth move;
+            :mod:`diffsampler_rt.low_frequencies`), ``"restore_cut"`` (GBN models 1, sot /
+            sot_fast 0.4: where n is not a square, the thinned set's density restored from
+            the full set's up to that many sqrt(n) instead of the runtime's 0.25) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
             every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
             that where a structure is imposed the spacing comes before it, so that the
