@@ -415,6 +415,8 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
     A row taken over records the file and run it came from under ``"measured"``."""
     path = out / "fidelity" / f"{r['name']}.json"
     if not path.exists():
+        if not r["rows"]:
+            raise SystemExit(f"{r['name']}: no kept result to keep; measure it with --sizes N")
         return r
     old = json.loads(path.read_text())
     model, unwarp = diffsampler_rt.load(r["name"]), UNWARP.get(r["sampler"])

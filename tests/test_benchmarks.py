@@ -41,6 +41,9 @@ def test_fidelity_report_runs(tmp_path):
     res = subprocess.run(merge[:4] + ["--sizes", "--out", str(tmp_path / "out")],
                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 2 and "no size given" in res.stderr
+    res = subprocess.run(merge[:4] + ["--sizes", "--merge", "--out", str(tmp_path / "none")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 1 and "sobol_owen: no kept result to keep" in res.stderr
     # a kept row the current file does not reproduce is refused, not merged
     kept = tmp_path / "out" / "fidelity" / "sobol_owen.json"
     r = json.loads(kept.read_text())
