@@ -136,3 +136,18 @@ def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(tmp_path, caps
 
 def test_docstring_examples():
     assert doctest.testmod(low_frequencies).failed == 0
+
+
+def test_grid_side_is_the_smallest_5_smooth_side_beyond_the_cut():
+    def smooth(m):
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        return m == 1
+
+    for fc in (0.5, 1, 7.3, 16, 32, 64, 100.2, 512):
+        m = low_frequencies._grid_side(fc)
+        least = max(16, 4 * fc + 8)
+        assert m >= least and smooth(m)
+        assert not any(smooth(j) for j in range(int(np.ceil(least)), m)), (fc, m)
+    assert low_frequencies._grid_side(32) == 144  # n = 1024, cut 0.5, mirrored (was 256)
