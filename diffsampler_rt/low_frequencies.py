@@ -143,6 +143,7 @@ def _operator(m: int, fc: float) -> tuple[np.ndarray, ...]:
     return fx, fy, low, taper, laplacian
 
 
+@lru_cache(maxsize=16)  # one per size and cut, like _operator: not searched per set
 def _grid_side(fc: float) -> int:
     """The FFT grid's side for a cut of fc cycles across it: well beyond the cut (4 fc + 8
     cells, 16 or more), rounded up to a 5-smooth number (2^a 3^b 5^c), which the FFT handles
