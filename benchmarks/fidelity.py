@@ -409,6 +409,22 @@ def reproduced(model, row: dict, n: int, seed: int, unwarp, sets: int = 4) -> bo
                             rtol=REPRODUCE_RTOL, atol=0))
 
 
+def stop_if_stale(name: str, sizes: list[int], out: Path, seed: int) -> None:
+    """SystemExit if a kept row of model ``name`` at a size not in ``sizes`` is not reproduced
+    by the current file (run before measuring too, so a long run does not stop half-way)."""
+    path = out / "fidelity" / f"{name}.json"
+    if not path.exists():
+        return
+    old = json.loads(path.read_text())
+    model, unwarp = diffsampler_rt.load(name), UNWARP.get(old["sampler"])
+    for n, row in ((int(n), row) for n, row in old["rows"].items()):
+        if n in sizes:
+            continue
+        if old.get("settings", {}).get("seed") != seed or not reproduced(model, row, n, seed, unwarp):
+            raise SystemExit(f"{name}: the kept row at n = {n} is not reproduced by the "
+                             "current model file; measure that size again")
+
+
 def merge_kept(r: dict, out: Path, seed: int) -> dict:
     """``r`` with the rows of the kept result for this model at the sizes not measured now,
     each checked to be reproduced by the current file (else SystemExit: re-run that size).
@@ -419,14 +435,12 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
             raise SystemExit(f"{r['name']}: no kept result to keep; measure it with --sizes N")
         return r
     old = json.loads(path.read_text())
-    model, unwarp = diffsampler_rt.load(r["name"]), UNWARP.get(r["sampler"])
+    model = diffsampler_rt.load(r["name"])
     rows = {}
+    stop_if_stale(r["name"], list(r["rows"]), out, seed)
     for n, row in ((int(n), row) for n, row in old["rows"].items()):
         if n in r["rows"]:
             continue
-        if old.get("settings", {}).get("seed") != seed or not reproduced(model, row, n, seed, unwarp):
-            raise SystemExit(f"{r['name']}: the kept row at n = {n} is not reproduced by the "
-                             "current model file; measure that size again")
         row.setdefault("measured", {"date": old["date"], "settings": old["settings"],
                                     "model_sha256": old["model_sha256"]})
         rows[n] = row
@@ -871,6 +885,9 @@ def main() -> None:
                     print(f"{sampler} n={n}: 2 x {count} reference sets and statistics "
                           f"({time.perf_counter() - t:.0f} s)", flush=True)
             return
+        if a.merge:  # every model's kept rows checked before the first is measured
+            for m in models:
+                stop_if_stale(m, a.sizes or [], a.out, a.seed)
         for m in models:
             r = evaluate(pool, m, a)
             save_result(merge_kept(r, a.out, a.seed) if a.merge else r, a.out)

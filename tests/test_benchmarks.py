@@ -51,6 +51,7 @@ def test_fidelity_report_runs(tmp_path):
     kept.write_text(json.dumps(r))
     res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode != 0 and "n = 64 is not reproduced" in res.stderr
+    assert "sobol_owen n=256" not in res.stdout  # refused before any size was measured
     res = subprocess.run([sys.executable, "benchmarks/violins.py", "--results",
                           str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0, res.stderr
