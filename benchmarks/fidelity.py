@@ -411,7 +411,8 @@ def reproduced(model, row: dict, n: int, seed: int, unwarp, sets: int = 4) -> bo
 
 def stop_if_stale(name: str, sizes: list[int], out: Path, seed: int) -> None:
     """SystemExit if a kept row of model ``name`` at a size not in ``sizes`` is not reproduced
-    by the current file (run before measuring too, so a long run does not stop half-way)."""
+    by the current file (run before any model is measured, so a long run does not stop
+    half-way)."""
     path = out / "fidelity" / f"{name}.json"
     if not path.exists():
         return
@@ -427,7 +428,7 @@ def stop_if_stale(name: str, sizes: list[int], out: Path, seed: int) -> None:
 
 def merge_kept(r: dict, out: Path, seed: int) -> dict:
     """``r`` with the rows of the kept result for this model at the sizes not measured now,
-    each checked to be reproduced by the current file (else SystemExit: re-run that size).
+    which :func:`stop_if_stale` checked before the run (the file does not change in it).
     A row taken over records the file and run it came from under ``"measured"``."""
     path = out / "fidelity" / f"{r['name']}.json"
     if not path.exists():
@@ -435,9 +436,7 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
             raise SystemExit(f"{r['name']}: no kept result to keep; measure it with --sizes N")
         return r
     old = json.loads(path.read_text())
-    model = diffsampler_rt.load(r["name"])
     rows = {}
-    stop_if_stale(r["name"], list(r["rows"]), out, seed)
     for n, row in ((int(n), row) for n, row in old["rows"].items()):
         if n in r["rows"]:
             continue
@@ -449,6 +448,7 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
         # size's sets do, e.g. a card's restore cut): the plot's example sets, made at the
         # smallest size
         n = min(rows)
+        model = diffsampler_rt.load(r["name"])
         rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
                    "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}
     rows.update(r["rows"])
