@@ -97,6 +97,14 @@ def test_spacing_coefficient_of_a_lattice():
         spacing_coefficient(grid[None], 120)
 
 
+def test_spacing_coefficient_mean():
+    pts = np.random.default_rng(3).random((5, 64, 2))
+    smallest = min_distance(pts)
+    assert spacing_coefficient(pts, mean=True) == pytest.approx(smallest.mean() * 8)
+    assert spacing_coefficient(pts, 0) == pytest.approx(smallest.min() * 8)
+    assert spacing_coefficient(pts, 0) < spacing_coefficient(pts, mean=True)
+
+
 def test_card_spacing_is_applied_and_removable(tiny_onnx, tmp_path):
     from export.defaults import set_defaults
     path = tmp_path / "m.onnx"
@@ -253,6 +261,16 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
             for k in (4, 8)]
     assert out[0].startswith("tiny: k=4 (12 sets) spacing coefficient")
     assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
+    assert main(["spacing", str(fresh), "--fresh-sets", "12", "--mean"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rng = np.random.default_rng(cfg.seed)
+    want = [spacing_coefficient(sample("sobol_owen", k * k, count=12, seed=rng), mean=True)
+            for k in (4, 8)]
+    assert "(mean of the sets' smallest distance, times sqrt(n))" in out[0]
+    assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
+    with pytest.raises(SystemExit):  # one or the other
+        main(["spacing", str(fresh), "--mean", "--percentile", "50"])
+    capsys.readouterr()
     assert main(["spacing", str(fresh), "--fresh-sets", "0"]) == 2
     assert capsys.readouterr().err == "error: --fresh-sets must be >= 1, got 0\n"
     pooled = tmp_path / "pooled.json"

@@ -83,10 +83,11 @@ def _spacing(args: argparse.Namespace) -> None:
                           workers=args.workers) for k in sorted(cfg.data.sizes)}
     table = []
     for k, pts in sorted(sets.items()):
-        c = spacing_coefficient(pts, args.percentile)
+        c = spacing_coefficient(pts, args.percentile, mean=args.mean)
         table.append(f"{k * k}:{c:.4f}")
+        what = "mean" if args.mean else f"percentile {args.percentile:g}"
         print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient {c:.4f} "
-              f"(percentile {args.percentile:g} of the sets' smallest distance, times sqrt(n))")
+              f"({what} of the sets' smallest distance, times sqrt(n))")
     print(f"{cfg.name}: per size: --min-spacing {','.join(table)}")
 
 
@@ -123,8 +124,11 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("spacing", help="spacing coefficient of a config's training sets "
                        "(for `python -m export set-defaults --min-spacing`)")
     c.add_argument("config", type=Path)
-    c.add_argument("--percentile", type=float, default=5.0,
-                   help="share of the sets whose smallest distance is below the radius")
+    which = c.add_mutually_exclusive_group()
+    which.add_argument("--percentile", type=float, default=5.0,
+                       help="share of the sets whose smallest distance is below the radius")
+    which.add_argument("--mean", action="store_true",
+                       help="the sets' mean smallest distance instead of a percentile")
     c.add_argument("--workers", type=int, default=1,
                    help="processes for the slow samplers, if the pools are not cached")
     c.add_argument("--fresh-sets", type=int, default=256,
