@@ -88,6 +88,26 @@ def quantised(card: dict) -> str:
             "benchmarks/results/quantized.md)")
 
 
+def write_report(out: Path) -> None:
+    """``out`` from the sections kept beside it, naming the students that have none yet."""
+    kept = out.parent / "distilled"
+    header = ["# Distilled students vs their teachers", "",
+              f"`python benchmarks/distilled.py` ({os.cpu_count()} cores; ms/set is one "
+              "batched call here, taken while other jobs ran: indicative only, "
+              "benchmarks/results/speed.md has the clean timings). Every row: generated vs "
+              "reference batch A (the sets of benchmarks/fidelity.py); the first row is an "
+              "independent reference batch B (the noise floor). Relative differences of the "
+              f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} "
+              "%). Trained sides: 8, 16, 32 (n = 64, 256, 1024); 576 is unseen. Each model's "
+              "section is kept in benchmarks/results/distilled/ and says how it was run.", ""]
+    missing = [m for m in students() if not (kept / f"{m}.md").exists()]
+    if missing:
+        header += ["Not measured here yet: " + ", ".join(f"`{m}`" for m in missing)
+                   + " (their fidelity against the sampler is in fidelity.md).", ""]
+    sections = [p.read_text() for p in sorted(kept.glob("*.md"))]
+    out.write_text("\n".join(header + sections))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", nargs="*", help="students (default: every distilled bundled model)")
@@ -106,15 +126,6 @@ def main() -> None:
     models = a.models or students()
     refs = argparse.Namespace(sets=a.ref_sets[0], slow_sets=a.ref_sets[1],
                               slow_4096=a.ref_sets[2], spectrum_sets=1024)
-    header = ["# Distilled students vs their teachers", "",
-              f"`python benchmarks/distilled.py` ({os.cpu_count()} cores; ms/set is one "
-              "batched call here, taken while other jobs ran: indicative only, "
-              "benchmarks/results/speed.md has the clean timings). Every row: generated vs "
-              "reference batch A (the sets of benchmarks/fidelity.py); the first row is an "
-              "independent reference batch B (the noise floor). Relative differences of the "
-              f"means; ✗: beyond ±{100 * TOL_MEAN:.0f} % (min distance ±{100 * TOL_MIND:.0f} "
-              "%). Trained sides: 8, 16, 32 (n = 64, 256, 1024); 576 is unseen. Each model's "
-              "section is kept in benchmarks/results/distilled/ and says how it was run.", ""]
     kept = a.out.parent / "distilled"
     kept.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
@@ -134,8 +145,7 @@ def main() -> None:
                 rows = compare(pool, card["sampler"], n, runs_for(name), a, refs)
                 lines += [f"### n = {n} ({rows[0]['count']} sets a side)", ""] + table(rows) + [""]
             (kept / f"{name}.md").write_text("\n".join(lines))
-    sections = [p.read_text() for p in sorted(kept.glob("*.md"))]
-    a.out.write_text("\n".join(header + sections))
+    write_report(a.out)
     print(f"wrote {a.out}")
 
 

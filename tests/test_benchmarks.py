@@ -377,3 +377,19 @@ def test_any_n_report_runs(tmp_path):
         res = subprocess.run(cmd[:2] + ["--models", "rank1", "--sizes", "50"] + bad,
                              capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
         assert res.returncode == 2 and match in res.stderr
+
+
+def test_distilled_report_names_the_students_it_has_not_measured(tmp_path):
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.distilled import students, write_report
+    kept = tmp_path / "distilled"
+    kept.mkdir()
+    (kept / "gbn_fast.md").write_text("## gbn_fast\n\nkept section\n")
+    out = tmp_path / "distilled.md"
+    write_report(out)
+    text = out.read_text()
+    assert text.startswith("# Distilled students vs their teachers")
+    assert text.endswith("## gbn_fast\n\nkept section\n")
+    line = next(s for s in text.splitlines() if s.startswith("Not measured here yet: "))
+    assert "`gbn_fast`" not in line
+    assert all(f"`{m}`" in line for m in students() if m != "gbn_fast")
