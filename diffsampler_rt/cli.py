@@ -84,14 +84,16 @@ def _cmd_plot(args: argparse.Namespace) -> None:
 
 def _cmd_list(args: argparse.Namespace) -> None:
     from .model import MODELS_DIR, bundled_models, load
-    for name in bundled_models():
+    names = bundled_models()
+    width = max(map(len, names), default=0)  # the name column fits the longest name
+    for name in names:
         card = load(name).card
         size = (MODELS_DIR / f"{name}.onnx").stat().st_size / 2**20
         distilled = card.get("distillation")
         origin = f", distilled from {distilled['teacher']}" if distilled else ""
         origin += ", 8-bit convolutions" if card.get("weights") == "int8" else ""
         origin += ", toroidal sets" if card.get("padding") == "circular" else ""
-        print(f"{name:<18} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
+        print(f"{name:<{width}} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
               f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
               f"({size:.1f} MiB{origin})")
 

@@ -52,6 +52,8 @@ def test_list_and_info(capsys):
     lines = {line.split()[0]: line for line in out.splitlines()}
     assert "8-bit convolutions" in lines["gbn_fast"] and "8-bit" not in lines["gbn"]
     assert "toroidal" in lines["gbn_torus_fast"] and "toroidal" not in lines["gbn_fast"]
+    # one column each: every line's fields start where the others' do
+    assert len({line.index(" sampler=") for line in lines.values()}) == 1
     assert main(["info", "rank1"]) == 0
     assert '"sampler": "rank1"' in capsys.readouterr().out
 
