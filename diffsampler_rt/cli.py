@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import IO
 
@@ -22,6 +23,11 @@ import numpy as np
 from .solvers import SOLVERS
 
 FORMATS = ("txt", "npy", "csv")
+
+
+def _warn_one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line on stderr, like the errors (not Python's file:line form)."""
+    print(f"diffsampler: warning: {message}", file=sys.stderr)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -154,7 +160,9 @@ def main(argv: list[str] | None = None) -> int:
 
     args = p.parse_args(argv)
     try:
-        args.func(args)
+        with warnings.catch_warnings():  # restores the caller's showwarning afterwards
+            warnings.showwarning = _warn_one_line
+            args.func(args)
     except BrokenPipeError:
         # the reader closed the pipe (`diffsampler generate ... | head`): not an error;
         # point stdout at devnull so the interpreter's final flush does not complain

@@ -98,3 +98,11 @@ def test_generate_no_structure(tmp_path):
         ref = diffsampler_rt.generate("sobol_owen", 64, count=2, seed=4, steps=3,
                                       structure=structure)
         np.testing.assert_array_equal(np.load(out), ref)
+
+
+def test_warnings_are_one_line(capsys):
+    # a distilled model asked for other steps warns; the CLI says so on one line
+    assert main(["generate", "gbn_fast", "64", "--steps", "4", "--seed", "1"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("diffsampler: warning: model 'gbn_fast' was distilled for ddim")
+    assert len(err.splitlines()) == 1
