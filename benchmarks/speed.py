@@ -19,6 +19,7 @@ import datetime as dt
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -162,13 +163,20 @@ def measure(a, kept: dict | None = None) -> dict:
     return results
 
 
-def report(results: dict, a) -> None:
+def last_run_date(md: Path) -> str | None:
+    """The date of the run that made ``md`` (speed.md's first line of text), if any."""
+    m = re.search(r"`python benchmarks/speed\.py` on (\d{4}-\d{2}-\d{2})",
+                  md.read_text() if md.exists() else "")
+    return m.group(1) if m else None
+
+
+def report(results: dict, a, date: str) -> None:
     fid_path = ROOT / "benchmarks" / "results" / "fidelity.json"
     fid = json.loads(fid_path.read_text()) if fid_path.exists() else {}
     lines = [
         "# Generation speed vs the reference samplers",
         "",
-        f"`python benchmarks/speed.py` on {dt.date.today().isoformat()}: {os.cpu_count()} cores "
+        f"`python benchmarks/speed.py` on {date}: {os.cpu_count()} cores "
         f"({platform.processor() or platform.machine()}), onnxruntime "
         f"{_ort_version()}, intra-op threads: {a.threads or 'onnxruntime default (all cores)'}. "
         "Each figure comes from a fresh process that does nothing else (median of "
@@ -292,7 +300,11 @@ def main() -> None:
     results = {} if a.report_only else measure(a, kept)
     if kept and not a.fresh:
         results = merge_kept(kept, results)
-    report(dict(sorted(results.items())), a)
+    # --report-only measures nothing: the header keeps the date of the last measuring run
+    today = dt.date.today().isoformat()
+    date = (last_run_date(ROOT / "benchmarks" / "results" / "speed.md") or today
+            if a.report_only else today)
+    report(dict(sorted(results.items())), a, date)
 
 
 def merge_kept(old: dict, new: dict) -> dict:

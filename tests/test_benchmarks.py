@@ -393,3 +393,12 @@ def test_distilled_report_names_the_students_it_has_not_measured(tmp_path):
     line = next(s for s in text.splitlines() if s.startswith("Not measured here yet: "))
     assert "`gbn_fast`" not in line
     assert all(f"`{m}`" in line for m in students() if m != "gbn_fast")
+
+
+def test_speed_report_only_keeps_the_measuring_run_date(tmp_path):
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.speed import last_run_date
+    md = tmp_path / "speed.md"
+    assert last_run_date(md) is None
+    md.write_text("# Generation speed\n\n`python benchmarks/speed.py` on 2026-11-28: 2 cores\n")
+    assert last_run_date(md) == "2026-11-28"
