@@ -17,6 +17,13 @@ def integer(name: str, value: object) -> int:
     return int(value)
 
 
+def flag(name: str, value: object) -> bool:
+    """A switch must be a bool: a string such as "false" is truthy and would flip it."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
+    return bool(value)
+
+
 def num_points(n: object) -> int:
     """n must be an integer in [MIN_POINTS, MAX_POINTS]; returns the grid side
     k = ceil(sqrt n) (n = k*k: the net's own size; otherwise k*k - n points are thinned

@@ -244,6 +244,8 @@ class Model:
             if per_batch < 1:
                 raise ValueError(f"batch must be >= 1, got {per_batch}")
         rng = _validate.rng(seed)
+        structure = _validate.flag("structure", structure)
+        progress = _validate.flag("progress", progress)
         # validated now; the sets are made as the caller iterates
         # a structure belongs to the k x k set, except a lattice (one per n: at an n that is
         # not a square, the thinned set is replaced by its nearest lattice of n points); the

@@ -81,6 +81,9 @@ def test_bad_n(n, exc, match):
     (dict(seed=-1), ValueError, "seed must be a non-negative integer, got -1"),
     (dict(seed="x"), TypeError, "seed must be an integer"),
     (dict(solver="euler"), ValueError, "unknown solver 'euler'"),
+    (dict(structure="false"), TypeError, "structure must be True or False, got 'false'"),
+    (dict(structure=None), TypeError, "structure must be True or False, got None"),
+    (dict(progress=1), TypeError, "progress must be True or False, got 1"),
 ])
 def test_bad_arguments(kwargs, exc, match):
     with pytest.raises(exc, match=match):
