@@ -23,6 +23,23 @@ def _pyplot():
     return plt
 
 
+def _as_sets(name: str, points: Any) -> np.ndarray:
+    """(count, n, 2) float64 sets in the unit square, or a ValueError naming what is wrong
+    (the spectra are those of the unit square: NaNs or points outside it make no plot)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim == 2:
+        pts = pts[None]
+    if pts.ndim != 3 or pts.shape[-1] != 2 or pts.shape[1] == 0:
+        raise ValueError(f"{name} must have shape (n, 2) or (count, n, 2), got {np.shape(points)}")
+    if not np.all(np.isfinite(pts)):
+        bad = int(np.sum(~np.isfinite(pts)))
+        raise ValueError(f"{name} has {bad} non-finite coordinate{'s' * (bad != 1)} (NaN or inf)")
+    if pts.min() < 0 or pts.max() > 1:
+        raise ValueError(f"{name} must lie in the unit square [0, 1]^2, got coordinates from "
+                         f"{pts.min():.4g} to {pts.max():.4g}")
+    return pts
+
+
 def plot_sets(points: np.ndarray, *, title: str = "", reference: np.ndarray | None = None,
               reference_label: str = "reference", path: str | os.PathLike | None = None) -> Any:
     """Three panels for sets (count, n, 2) or one set (n, 2): the first set's points, the
@@ -51,11 +68,9 @@ def plot_sets(points: np.ndarray, *, title: str = "", reference: np.ndarray | No
     >>> len(fig.axes)
     4
     """
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim == 2:
-        pts = pts[None]
-    if pts.ndim != 3 or pts.shape[-1] != 2:
-        raise ValueError(f"points must have shape (n, 2) or (count, n, 2), got {np.shape(points)}")
+    pts = _as_sets("points", points)
+    if reference is not None:
+        reference = _as_sets("reference", reference)
     plt = _pyplot()
     n = pts.shape[1]
     fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
@@ -71,8 +86,7 @@ def plot_sets(points: np.ndarray, *, title: str = "", reference: np.ndarray | No
     ax[1].set(title=f"{title} power spectrum ({len(pts)} sets)".strip(), xticks=[], yticks=[])
     x, s = radial_spectrum(pts)
     if reference is not None:
-        ref = np.asarray(reference, dtype=np.float64)
-        ax[2].plot(x, radial_spectrum(ref)[1], lw=1.5, color="0.5", label=reference_label)
+        ax[2].plot(x, radial_spectrum(reference)[1], lw=1.5, color="0.5", label=reference_label)
     ax[2].plot(x, s, lw=1.2, color="C1", label=title or "points")
     ax[2].axhline(1.0, color="k", lw=0.5, ls=":")
     ax[2].set(title="radial spectrum", xlabel="|f| / sqrt(n)", ylabel="power",

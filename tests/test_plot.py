@@ -29,6 +29,17 @@ def test_plot_errors(tmp_path, capsys):
     assert "too small" in capsys.readouterr().err
     with pytest.raises(ValueError, match="shape"):
         plot_sets(np.zeros((4, 3)))
+    # NaNs or points outside the square make no spectrum: said, not drawn blank
+    bad = np.random.default_rng(0).random((2, 64, 2))
+    bad[1, 3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"points has 1 non-finite coordinate \(NaN or inf\)"):
+        plot_sets(bad)
+    with pytest.raises(ValueError, match="reference must lie in the unit square.*to 2"):
+        plot_sets(bad[0], reference=2 * np.ones((1, 64, 2)))
+    np.save(tmp_path / "outside.npy", bad[0] - 0.5)
+    assert main(["plot", str(tmp_path / "outside.npy"), "-o", str(tmp_path / "x.png")]) == 2
+    assert "points must lie in the unit square [0, 1]^2, got coordinates from -0." in (
+        capsys.readouterr().err)
 
 
 def test_reference_curve_and_docstring():
