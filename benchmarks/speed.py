@@ -300,10 +300,9 @@ def main() -> None:
     results = {} if a.report_only else measure(a, kept)
     if kept and not a.fresh:
         results = merge_kept(kept, results)
-    # --report-only measures nothing: the header keeps the date of the last measuring run
-    today = dt.date.today().isoformat()
-    date = (last_run_date(ROOT / "benchmarks" / "results" / "speed.md") or today
-            if a.report_only else today)
+    date = dt.date.today().isoformat()
+    if a.report_only:  # measures nothing: the header keeps the date of the last measuring run
+        date = last_run_date(ROOT / "benchmarks" / "results" / "speed.md") or date
     report(dict(sorted(results.items())), a, date)
 
 
