@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 
+from ._validate import unit_points
 from .low_frequencies import RESTORE_CUT, restore_low_frequencies
 from .spacing import close_pairs
 
@@ -76,12 +77,9 @@ def eliminate(points: np.ndarray, n: int, *, torus: bool = False) -> np.ndarray:
     >>> bool(d(kept) > d(pts))
     True
     """
-    pts = np.asarray(points, dtype=np.float64)
+    pts = unit_points(points, form="(m, 2) or (sets, m, 2)")
     single = pts.ndim == 2
     pts = pts[None] if single else pts
-    if pts.ndim != 3 or pts.shape[-1] != 2:
-        raise ValueError(f"points must have shape (m, 2) or (sets, m, 2), got "
-                         f"{np.shape(points)}")
     m = pts.shape[1]
     _check_n(n, m)
     out = np.stack([p[_kept(p, int(n), torus)] for p in pts]) if n < m else pts.copy()
@@ -105,7 +103,7 @@ def thin(points: np.ndarray, n: int, *, torus: bool = False,
     >>> thin(np.random.default_rng(0).random((2, 1024, 2)), 1000).shape
     (2, 1000, 2)
     """
-    full = np.asarray(points, dtype=np.float64)
+    full = unit_points(points, form="(m, 2) or (sets, m, 2)")
     if rngs is None:
         kept = eliminate(full, n, torus=torus)
     else:

@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from ._cic import deposit
+from ._validate import unit_points
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
 #: half-width of the frequency box scored, in units of sqrt(n)
@@ -111,12 +112,9 @@ def fit_rank1_lattice(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     >>> int(g), bool(fit > 0.5)
     (271, True)
     """
-    pts = np.asarray(points, dtype=np.float64)
+    pts = unit_points(points, min_n=4)
     single = pts.ndim == 2
     pts = pts[None] if single else pts
-    if pts.ndim != 3 or pts.shape[-1] != 2 or pts.shape[1] < 4:
-        raise ValueError(f"points must have shape (n, 2) or (sets, n, 2) with n >= 4, got "
-                         f"{np.shape(points)}")
     n = pts.shape[1]
     gens, shifts, fits = [], [], []
     for p in pts:
@@ -174,7 +172,7 @@ def nearest_rank1_lattice(points: np.ndarray,
     >>> float(np.abs(np.sort(snapped, axis=0) - np.sort(exact, axis=0)).max()) < 1e-3
     True
     """
-    pts = np.asarray(points, dtype=np.float64)
+    pts = unit_points(points, form="(..., n, 2)", min_n=4)
     flat = pts.reshape((-1,) + pts.shape[-2:])
     g, shift, _ = fit_rank1_lattice(flat)
     n = pts.shape[-2]

@@ -31,6 +31,7 @@ import numpy as np
 
 from . import per_size
 from ._cic import deposit
+from ._validate import unit_points
 
 #: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
 #: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings),
@@ -98,8 +99,8 @@ def restore_low_frequencies(kept: np.ndarray, full: np.ndarray, *, torus: bool =
     >>> moved.shape, bool(np.all((moved >= 0) & (moved < 1)))
     ((200, 2), True)
     """
-    return _move(np.asarray(kept, dtype=np.float64), np.asarray(full, dtype=np.float64),
-                 1.0, cut, torus)
+    return _move(unit_points(kept, name="kept", form="(n, 2)"),
+                 unit_points(full, name="full", form="(m, 2)"), 1.0, cut, torus)
 
 
 def even_out(points: np.ndarray, gain: float, *, cut: float, torus: bool = False) -> np.ndarray:
@@ -119,9 +120,9 @@ def even_out(points: np.ndarray, gain: float, *, cut: float, torus: bool = False
     >>> even_out(pts, 0.0, cut=1.0) is pts
     True
     """
+    pts = unit_points(points)
     if gain == 0:  # bit for bit: a per-size table may pass through 0
         return points
-    pts = np.asarray(points, dtype=np.float64)
     flat = pts.reshape((-1,) + pts.shape[-2:])
     return np.stack([_move(p, None, gain, cut, torus) for p in flat]).reshape(pts.shape)
 

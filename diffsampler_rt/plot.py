@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ._validate import unit_points
 from .spectrum import BIN_WIDTH, periodogram, radial_spectrum
 
 
@@ -26,18 +27,8 @@ def _pyplot():
 def _as_sets(name: str, points: Any) -> np.ndarray:
     """(count, n, 2) float64 sets in the unit square, or a ValueError naming what is wrong
     (the spectra are those of the unit square: NaNs or points outside it make no plot)."""
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim == 2:
-        pts = pts[None]
-    if pts.ndim != 3 or pts.shape[-1] != 2 or pts.shape[1] == 0:
-        raise ValueError(f"{name} must have shape (n, 2) or (count, n, 2), got {np.shape(points)}")
-    if not np.all(np.isfinite(pts)):
-        bad = int(np.sum(~np.isfinite(pts)))
-        raise ValueError(f"{name} has {bad} non-finite coordinate{'s' * (bad != 1)} (NaN or inf)")
-    if pts.min() < 0 or pts.max() > 1:
-        raise ValueError(f"{name} must lie in the unit square [0, 1]^2, got coordinates from "
-                         f"{pts.min():.4g} to {pts.max():.4g}")
-    return pts
+    pts = unit_points(points, name=name, form="(n, 2) or (count, n, 2)")
+    return pts[None] if pts.ndim == 2 else pts
 
 
 def plot_sets(points: np.ndarray, *, title: str = "", reference: np.ndarray | None = None,

@@ -28,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import per_size
+from ._validate import unit_points
 
 #: most directions per iteration a card may ask for (each is a sort of all n points)
 MAX_DIRECTIONS = 1024
@@ -166,7 +167,7 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     >>> out.shape, bool(np.all((out >= 0) & (out < 1)))
     ((1, 256, 2), True)
     """
-    x = square_to_disk(np.asarray(points, dtype=np.float64))
+    x = square_to_disk(unit_points(points, form="(sets, n, 2)"))
     base = np.arange(directions) * (np.pi / directions)
     turns = np.stack([g.random(iterations) for g in rngs]) * (np.pi / directions)  # (c, K)
 

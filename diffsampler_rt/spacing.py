@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import per_size
+from ._validate import unit_points
 from .grid import wrap
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
@@ -65,7 +66,7 @@ def close_pairs(points: np.ndarray, r: float, *,
     Points are binned into square buckets of side >= r, so each point is compared with the
     points of its own and the 8 neighbouring buckets only (O(m) for spread-out sets).
     """
-    p = np.asarray(points, dtype=np.float64)
+    p = unit_points(points, form="(m, 2)")
     return _close_pairs(p, np.zeros(len(p), dtype=np.int64), r, np.arange(len(p)), torus)
 
 
@@ -145,9 +146,7 @@ def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32,
     """
     if not (isinstance(r, (int, float, np.floating)) and np.isfinite(r) and r > 0):
         raise ValueError(f"spacing radius must be a positive number, got {r!r}")
-    pts = np.array(points, dtype=np.float64)
-    if pts.ndim < 2 or pts.shape[-1] != 2:
-        raise ValueError(f"points must have shape (..., n, 2), got {pts.shape}")
+    pts = np.array(unit_points(points, form="(..., n, 2)"))  # a copy: moved in place
     flat = pts.reshape(-1, 2)
     set_id = np.arange(len(flat)) // max(pts.shape[-2], 1)
     query = np.arange(len(flat))  # then only the points the last round moved

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._validate import unit_points
 from .grid import strip_bounds
 from .lattice import nearest_rank1_lattice
 
@@ -152,8 +153,8 @@ def impose_n_rooks(points: np.ndarray, k: int) -> np.ndarray:
 
 
 def _checked(points: np.ndarray, k: int) -> np.ndarray:
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.shape[-2:] != (k * k, 2):
+    pts = unit_points(points, form="(..., n, 2)")
+    if pts.shape[-2] != k * k:
         raise ValueError(f"points must have shape (..., {k * k}, 2), got {pts.shape}")
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     cells = np.floor(grid * k)
