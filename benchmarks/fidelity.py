@@ -16,11 +16,14 @@ are deterministic in their seeds); generated sets are made in the run. Each mode
 are kept in benchmarks/results/fidelity/<model>.json together with the hash of the model file
 and the run's settings, so models can be measured one at a time (e.g. as they finish
 training) and the report always covers every bundled model: a model whose file changed since
-its measurement is listed as not measured. Writes benchmarks/results/fidelity.md,
+its measurement is listed as not measured. A runtime change can move a file's sets too:
+--check-kept regenerates the first sets of every kept row and notes in the report the rows
+the current runtime no longer reproduces. Writes benchmarks/results/fidelity.md,
 fidelity.json and fidelity/<model>.png.
 
     python benchmarks/fidelity.py [--models gbn sot] [--sets 128] [--workers 2]
     python benchmarks/fidelity.py --report-only   # rebuild the report from kept results
+    python benchmarks/fidelity.py --check-kept    # which kept rows the runtime still makes
     python benchmarks/fidelity.py --models sot_fast --stored-reference   # the kept references
     python benchmarks/fidelity.py --models sot_ramp_fast --stored-reference sot_ramp  # teacher's
 """
@@ -426,6 +429,27 @@ def stop_if_stale(name: str, sizes: list[int], out: Path, seed: int) -> None:
                              "current model file; measure that size again")
 
 
+def check_kept(name: str, out: Path) -> list[int]:
+    """Check every kept row of model ``name`` (when its file is the current one) against
+    the current runtime: each row gets ``"reproduced": {"date", "ok"}``; returns the sizes
+    not reproduced. A runtime change, not only a new file, can move the generated sets
+    (e.g. a finishing step's numerics); the report then says which rows predate it."""
+    path = out / "fidelity" / f"{name}.json"
+    if not path.exists():
+        return []
+    kept = json.loads(path.read_text())
+    if kept.get("model_sha256") != model_hash(name):
+        return []  # the report lists it as not measured anyway
+    model, unwarp = diffsampler_rt.load(name), UNWARP.get(kept["sampler"])
+    today, seed, bad = dt.date.today().isoformat(), kept["settings"]["seed"], []
+    for n, row in kept["rows"].items():
+        ok = reproduced(model, row, int(n), seed, unwarp)
+        row["reproduced"] = {"date": today, "ok": ok}
+        bad += [] if ok else [int(n)]
+    path.write_text(json.dumps(kept, indent=1))
+    return bad
+
+
 def merge_kept(r: dict, out: Path, seed: int) -> dict:
     """``r`` with the rows of the kept result for this model at the sizes not measured now,
     which :func:`stop_if_stale` checked before the run (the file does not change in it).
@@ -442,6 +466,7 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
             continue
         row.setdefault("measured", {"date": old["date"], "settings": old["settings"],
                                     "model_sha256": old["model_sha256"]})
+        row.pop("reproduced", None)  # stop_if_stale has just checked it again
         rows[n] = row
     if rows and not r["rows"]:
         # nothing measured now (``--sizes`` with no size: the file changed where no square
@@ -656,6 +681,19 @@ def _taken_over(r: dict) -> list[str]:
     return ["", "Measured: " + "; ".join(parts) + " (`--merge`)."]
 
 
+def _stale_note(r: dict) -> list[str]:
+    """A note on rows that the current runtime no longer reproduces (``--check-kept``)."""
+    bad = {n: row["reproduced"]["date"] for n, row in r["rows"].items()
+           if not row.get("reproduced", {}).get("ok", True)}
+    if not bad:
+        return []
+    return ["", f"**Not reproduced by the current runtime** at n = {', '.join(map(str, bad))} "
+            f"(checked on {', '.join(sorted(set(bad.values())))}): the runtime has changed "
+            "since these rows were measured, and the model file's sets with it, so their "
+            "figures are those of the earlier runtime's sets (docs/models.md says what changed "
+            "and how far it moved them)."]
+
+
 def _stored_note(r: dict) -> list[str]:
     """A note on rows measured against stored reference figures (``--stored-reference``)."""
     by_run: dict[tuple[str, str], list[int]] = {}
@@ -793,7 +831,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
             lines.append(f"| {n} | {sets} | {row['mae']:.4f} ({row['floor']:.4f}) | "
                          + " | ".join(_fmt_rel(row[k], tolerance(k)) for k in STATS)
                          + f" | {extra} | {row['gen_ms']:.0f} | {row['ref_ms']:.0f} |")
-        lines += _taken_over(r) + _stored_note(r)
+        lines += _taken_over(r) + _stale_note(r) + _stored_note(r)
         lines += ["", f"![{r['name']}](fidelity/{r['name']}.png)"]
     lines.append("")
     (out / "fidelity.md").write_text("\n".join(lines))
@@ -867,6 +905,10 @@ def main() -> None:
                         "reference sets are not at hand (e.g. after a card change)")
     p.add_argument("--report-only", action="store_true",
                    help="only rebuild fidelity.md from the kept per-model results")
+    p.add_argument("--check-kept", action="store_true",
+                   help="only check whether the current runtime still makes the sets of "
+                        "every kept row (of --models), note in fidelity.md the rows it does "
+                        "not, and rebuild it")
     p.add_argument("--references-only", nargs="+", metavar="SAMPLER",
                    help="only make (and cache) these samplers' reference sets and statistics")
     a = p.parse_args()
@@ -874,7 +916,12 @@ def main() -> None:
     if not a.sizes and not (a.merge or a.report_only):
         p.error("--sizes: no size given (with --merge: keep every row the file reproduces)")
     bundled = diffsampler_rt.list_models()
-    models = [] if a.report_only else (a.models or bundled)
+    if a.check_kept:
+        for m in a.models or bundled:
+            bad = check_kept(m, a.out)
+            print(f"{m}: " + (f"kept rows not reproduced at n = {bad}" if bad
+                              else "every kept row reproduced"), flush=True)
+    models = [] if a.report_only or a.check_kept else (a.models or bundled)
     a.out.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(a.workers) as pool:
         if a.references_only:

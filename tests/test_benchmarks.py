@@ -52,6 +52,15 @@ def test_fidelity_report_runs(tmp_path):
     res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode != 0 and "n = 64 is not reproduced" in res.stderr
     assert "sobol_owen n=256" not in res.stdout  # refused before any size was measured
+    # --check-kept finds that row (as after a runtime change) and the report says so
+    res = subprocess.run(merge[:4] + ["--check-kept", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert "sobol_owen: kept rows not reproduced at n = [64]" in res.stdout
+    rows = json.loads(kept.read_text())["rows"]
+    assert [rows[n]["reproduced"]["ok"] for n in ("64", "256")] == [False, True]
+    md = (tmp_path / "out" / "fidelity.md").read_text()
+    assert "**Not reproduced by the current runtime** at n = 64 (checked on " in md
     res = subprocess.run([sys.executable, "benchmarks/violins.py", "--results",
                           str(tmp_path / "out")], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 0, res.stderr
