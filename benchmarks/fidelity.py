@@ -9,7 +9,8 @@ Structure checks: empty elementary intervals (sobol_owen), 1-d stratified projec
 (ldbn), the share of sets that are the reference's lattice (rank1, lattice). Non-uniform
 models are measured after the exact Rosenblatt map of their density to the uniform square,
 plus a density check (chi-square of an 8 x 8 histogram of the unwarped points; its expected
-value is 63 for a set that follows the density).
+value is 63 for a set that follows the density) and the mean density over the sets in those
+cells against the reference's (a bias every set shares, which the per-set chi-square hides).
 
 Reference sets and their statistics are cached under ~/.cache/diffsampler/reference (they
 are deterministic in their seeds); generated sets are made in the run. Each model's results
@@ -114,11 +115,34 @@ def jittered(n: int, count: int) -> np.ndarray:
     return (cells[None] + np.random.default_rng(n).random((count, n, 2))) / k
 
 
-def chi2_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:
-    """Per set: chi-square of the bins x bins histogram of unwarped points vs uniform."""
+def _histograms(unwarped: np.ndarray, bins: int) -> np.ndarray:
+    """Per set: the counts of its points in the bins x bins cells of the square, (sets, bins^2)."""
     idx = np.minimum((unwarped * bins).astype(int), bins - 1)
     flat = idx[..., 1] * bins + idx[..., 0]
-    counts = np.stack([np.bincount(f, minlength=bins * bins) for f in flat.reshape(-1, flat.shape[-1])])
+    return np.stack([np.bincount(f, minlength=bins * bins) for f in flat.reshape(-1, flat.shape[-1])])
+
+
+def mean_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:
+    """The sets' mean count in each of the bins x bins cells of the unwarped square over the
+    expected count: 1 everywhere for sets that follow the density on average. Where a
+    per-set chi-square (:func:`chi2_density`) mixes each set's spread with a bias that every
+    set shares, this shows the bias alone (what a sum over many sets inherits)."""
+    return _histograms(unwarped, bins).mean(0) / (unwarped.shape[-2] / bins**2)
+
+
+def density_bias(gen: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray) -> dict:
+    """The rms differences of :func:`mean_density` of unwarped generated sets and of
+    reference batch A ("diff"; its floor: batch B against A), and of each against the
+    density itself ("gen", "ref"); A's cells are kept ("ref_cells") to measure against."""
+    g, a, b = (mean_density(p) for p in (gen, ref_a, ref_b))
+    rms = lambda u, v: float(np.sqrt(np.mean((u - v) ** 2)))  # noqa: E731
+    return {"diff": rms(g, a), "floor": rms(b, a), "gen": rms(g, 1.0), "ref": rms(a, 1.0),
+            "ref_cells": a.tolist()}
+
+
+def chi2_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:
+    """Per set: chi-square of the bins x bins histogram of unwarped points vs uniform."""
+    counts = _histograms(unwarped, bins)
     e = unwarped.shape[-2] / bins**2
     return ((counts - e) ** 2 / e).sum(-1)
 
@@ -326,6 +350,7 @@ def evaluate(pool, name: str, a) -> dict:
                               float(np.mean(fit_rank1_lattice(ref_a)[0] == g)))
         if unwarp:
             row["chi2"] = (float(chi2_density(gu).mean()), float(chi2_density(ru_a).mean()))
+            row["mean_density"] = density_bias(gu, ru_a[:count], ru_b[:count])
         res["rows"][n] = row
         _print_row(name, n, row)
     return res
@@ -392,6 +417,11 @@ def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
         row["lattice"] = (float(np.mean(fit_rank1_lattice(gen)[0] == g)), kept["lattice"][1])
     if "chi2" in kept:
         row["chi2"] = (float(chi2_density(gu).mean()), kept["chi2"][1])
+    if "mean_density" in kept:
+        g, a = mean_density(gu), np.asarray(kept["mean_density"]["ref_cells"])
+        row["mean_density"] = {**kept["mean_density"],
+                               "diff": float(np.sqrt(np.mean((g - a) ** 2))),
+                               "gen": float(np.sqrt(np.mean((g - 1) ** 2)))}
     return row
 
 
@@ -775,7 +805,12 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         f"beyond the tolerance and ✗? where it reaches into it (the miss may be noise: more "
         f"sets would tell). Gaussian / Heaviside MSE: equal-weight integration of "
         f"{INTEGRANDS} fixed random integrands each with exact integrals. Non-uniform models: "
-        "all figures after the exact unwarping map to the uniform square.",
+        "all figures after the exact unwarping map to the uniform square; their density check "
+        "gives the mean over sets of each set's chi-square on 8 x 8 cells (63 for sets that "
+        "follow the density), and the mean density: the mean count in each cell over the "
+        "expected count, its rms difference between the generated sets and reference batch A "
+        "(floor: batch B against A) and between each side and the density itself (a bias "
+        "every set shares, which a sum over many sets keeps).",
         "",
         "## Summary at n = 1024",
         "",
@@ -826,6 +861,10 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
                          f"(ref {100 * row['lattice'][1]:.0f} %)")
             if "chi2" in row:
                 extra = f"density chi2 {row['chi2'][0]:.0f} (ref {row['chi2'][1]:.0f}, ideal 63)"
+            if "mean_density" in row:
+                d = {k: 100 * v for k, v in row["mean_density"].items() if k != "ref_cells"}
+                extra += (f"; mean density vs ref {d['diff']:.1f} % rms ({d['floor']:.1f}), "
+                          f"vs the density {d['gen']:.1f} % (ref {d['ref']:.1f})")
             sets = (f"{row['count']} ({row['spectrum_count']} for the spectrum)"
                     if row["spectrum_count"] != row["count"] else str(row["count"])) + _gen(row)
             lines.append(f"| {n} | {sets} | {row['mae']:.4f} ({row['floor']:.4f}) | "

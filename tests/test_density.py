@@ -296,3 +296,18 @@ def test_bundled_density_models_follow_their_density_at_an_unseen_size():
         # a set that follows the density has chi-square ~63 or less (blue noise: less); the
         # models trained on the raw sets had 492 (sot_ramp) and 2171 (gbn_blob) here
         assert chi2 < 100, (name, chi2)
+
+
+def test_mean_density_shows_a_bias_every_set_shares():
+    from benchmarks.fidelity import density_bias, mean_density
+    rng = np.random.default_rng(0)
+    c = (np.arange(16) + 0.5) / 16
+    grid = np.stack(np.meshgrid(c, c), -1).reshape(-1, 2)  # 4 points in each of 8 x 8 cells
+    jitter = (grid[None] + rng.uniform(-0.5, 0.5, (50, 256, 2)) / 16) % 1
+    assert np.array_equal(mean_density(jitter), np.ones(64))
+    # every set squeezed towards x = 0 by the same map: a bias no single set's spread shows
+    biased = jitter.copy()
+    biased[..., 0] **= 1.1
+    d = density_bias(biased, jitter, jitter[::-1])
+    assert d["floor"] == 0 and d["ref"] == 0 and len(d["ref_cells"]) == 64
+    assert d["diff"] == d["gen"] > 0.05
