@@ -475,7 +475,8 @@ def check_kept(name: str, out: Path) -> list[int]:
     for n, row in kept["rows"].items():
         ok = reproduced(model, row, int(n), seed, unwarp)
         row["reproduced"] = {"date": today, "ok": ok}
-        bad += [] if ok else [int(n)]
+        if not ok:
+            bad.append(int(n))
     path.write_text(json.dumps(kept, indent=1))
     return bad
 
