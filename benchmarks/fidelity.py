@@ -116,7 +116,8 @@ def jittered(n: int, count: int) -> np.ndarray:
 
 
 def _histograms(unwarped: np.ndarray, bins: int) -> np.ndarray:
-    """Per set: the counts of its points in the bins x bins cells of the square, (sets, bins^2)."""
+    """Per set: the counts of its points in the bins x bins cells of the square,
+    shape (sets, bins^2)."""
     idx = np.minimum((unwarped * bins).astype(int), bins - 1)
     flat = idx[..., 1] * bins + idx[..., 0]
     return np.stack([np.bincount(f, minlength=bins * bins) for f in flat.reshape(-1, flat.shape[-1])])
@@ -135,9 +136,12 @@ def density_bias(gen: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray) -> dict:
     reference batch A ("diff"; its floor: batch B against A), and of each against the
     density itself ("gen", "ref"); A's cells are kept ("ref_cells") to measure against."""
     g, a, b = (mean_density(p) for p in (gen, ref_a, ref_b))
-    rms = lambda u, v: float(np.sqrt(np.mean((u - v) ** 2)))  # noqa: E731
-    return {"diff": rms(g, a), "floor": rms(b, a), "gen": rms(g, 1.0), "ref": rms(a, 1.0),
+    return {"diff": _rms(g, a), "floor": _rms(b, a), "gen": _rms(g, 1.0), "ref": _rms(a, 1.0),
             "ref_cells": a.tolist()}
+
+
+def _rms(u: np.ndarray, v: np.ndarray | float) -> float:
+    return float(np.sqrt(np.mean((u - v) ** 2)))
 
 
 def chi2_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:
@@ -419,9 +423,7 @@ def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
         row["chi2"] = (float(chi2_density(gu).mean()), kept["chi2"][1])
     if "mean_density" in kept:
         g, a = mean_density(gu), np.asarray(kept["mean_density"]["ref_cells"])
-        row["mean_density"] = {**kept["mean_density"],
-                               "diff": float(np.sqrt(np.mean((g - a) ** 2))),
-                               "gen": float(np.sqrt(np.mean((g - 1) ** 2)))}
+        row["mean_density"] = {**kept["mean_density"], "diff": _rms(g, a), "gen": _rms(g, 1.0)}
     return row
 
 

@@ -72,15 +72,17 @@ def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or 
     """``points`` as a float64 array of one or more sets of 2-d points in [0, 1]^2.
 
     ``form`` says which shapes are taken, e.g. ``"(n, 2)"``, ``"(sets, n, 2)"``,
-    ``"(n, 2) or (sets, n, 2)"`` or ``"(..., n, 2)"`` (any names); ``min_n`` is the fewest points a set may have. A ValueError names a
-    wrong shape, the count of non-finite coordinates, or the range of coordinates outside the
-    unit square: every finishing step and statistic here is defined on the unit square (or
-    torus), where a NaN would otherwise pass through as silent garbage.
+    ``"(n, 2) or (sets, n, 2)"`` or ``"(..., n, 2)"`` (any names); ``min_n`` is the fewest
+    points a set may have. A ValueError names a wrong shape, the count of non-finite
+    coordinates, or the range of coordinates outside the unit square: every finishing step
+    and statistic here is defined on the unit square (or torus), where a NaN would otherwise
+    pass through as silent garbage.
     """
     try:
         pts = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be an array of numbers, got {type(points).__name__}") from None
+        raise TypeError(f"{name} must be an array of numbers, "
+                        f"got {type(points).__name__}") from None
     ndims = None if "..." in form else {part.count(",") + 1 for part in form.split(" or ")}
     if (pts.ndim < 2 or (ndims is not None and pts.ndim not in ndims) or pts.shape[-1] != 2
             or pts.shape[-2] < min_n):
