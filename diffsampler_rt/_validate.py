@@ -72,8 +72,8 @@ def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or 
     """``points`` as a float64 array of one or more sets of 2-d points in [0, 1]^2.
 
     ``form`` says which shapes are taken, e.g. ``"(n, 2)"``, ``"(sets, n, 2)"``,
-    ``"(n, 2) or (sets, n, 2)"`` or ``"(..., n, 2)"`` (any names); ``min_n`` is the fewest
-    points a set may have. A ValueError names a wrong shape, the count of non-finite
+    ``"(n, 2) or (sets, n, 2)"``, ``"(..., n, 2)"`` or ``"(..., 2)"`` (points in any layout,
+    a lone point too; any names); ``min_n`` is the fewest points a set may have. A ValueError names a wrong shape, the count of non-finite
     coordinates, or the range of coordinates outside the unit square: every finishing step
     and statistic here is defined on the unit square (or torus), where a NaN would otherwise
     pass through as silent garbage.
@@ -84,8 +84,9 @@ def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or 
         raise TypeError(f"{name} must be an array of numbers, "
                         f"got {type(points).__name__}") from None
     ndims = None if "..." in form else {part.count(",") + 1 for part in form.split(" or ")}
-    if (pts.ndim < 2 or (ndims is not None and pts.ndim not in ndims) or pts.shape[-1] != 2
-            or pts.shape[-2] < min_n):
+    fewest_axes = form.count(",") if ndims is None else 2  # "(..., 2)": a lone point too
+    if (pts.ndim < fewest_axes or (ndims is not None and pts.ndim not in ndims)
+            or pts.shape[-1] != 2 or (pts.ndim >= 2 and pts.shape[-2] < min_n)):
         at_least = f" with n >= {min_n}" if min_n > 1 else ""
         raise ValueError(f"{name} must have shape {form}{at_least}, got {pts.shape}")
     if not np.all(np.isfinite(pts)):

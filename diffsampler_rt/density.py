@@ -19,6 +19,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ._validate import unit_points
+
 #: largest table side a card may carry (the card is JSON in the ONNX metadata)
 MAX_BINS = 256
 
@@ -67,7 +69,7 @@ def _column_cdf_at(yc: np.ndarray, cols: tuple, j: np.ndarray) -> np.ndarray:
 def unwarp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
     """Points (..., 2) of the density -> the uniform square (the Rosenblatt map)."""
     knots, xc, yc = _tables(table)
-    p = np.asarray(points, dtype=np.float64)
+    p = unit_points(points, form="(..., 2)")
     flat = p.reshape(-1, 2)
     u = np.interp(flat[:, 0], knots, xc)
     bins = yc.shape[0]
@@ -90,7 +92,7 @@ def warp(points: np.ndarray, table: Mapping[str, Any]) -> np.ndarray:
     array([[0.5, 0.5]])
     """
     knots, xc, yc = _tables(table)
-    p = np.asarray(points, dtype=np.float64)
+    p = unit_points(points, form="(..., 2)")
     flat = p.reshape(-1, 2)
     x = np.interp(flat[:, 0], xc, knots)
     bins = yc.shape[0]

@@ -3,9 +3,11 @@ and wrong shapes with an error naming them (they used to pass NaNs through as ga
 import numpy as np
 import pytest
 
-from diffsampler_rt import elimination, lattice, low_frequencies, sliced_ot, spacing, structure
+from diffsampler_rt import (density, elimination, lattice, low_frequencies, sliced_ot, spacing,
+                            structure)
 from diffsampler_rt._validate import unit_points
 
+TABLE = {"x_cdf": [0.0, 0.25, 1.0], "y_cdf": [[0.0, 0.5, 1.0], [0.0, 0.5, 1.0]]}
 K = 8  # 64 points: one per cell of an 8 x 8 grid, so impose_n_rooks takes the good set
 
 
@@ -26,6 +28,8 @@ FUNCTIONS = {
     "polish": lambda p: sliced_ot.polish(p[None], 2, 8, [np.random.default_rng(0)]),
     "even_out": lambda p: low_frequencies.even_out(p, 0.5, cut=0.5),
     "restore_low_frequencies": lambda p: low_frequencies.restore_low_frequencies(p[:50], p),
+    "warp": lambda p: density.warp(p, TABLE),
+    "unwarp": lambda p: density.unwarp(p, TABLE),
 }
 
 
@@ -72,3 +76,6 @@ def test_unit_points_forms():
     with pytest.raises(TypeError, match="points must be an array of numbers, got str"):
         unit_points("abc")
     assert unit_points([[0, 1]]).dtype == np.float64  # the square's closed edge is taken
+    assert unit_points([0.5, 0.5], form="(..., 2)").shape == (2,)  # a lone point
+    with pytest.raises(ValueError, match=r"points must have shape \(\.\.\., n, 2\), got \(2,\)"):
+        unit_points([0.5, 0.5], form="(..., n, 2)")
