@@ -28,6 +28,16 @@ def test_pool_is_cached_and_a_smaller_pool_is_its_prefix(cache):
     assert not np.array_equal(make_pool("rank1", "ot", 4, 3, seed=4), small)
 
 
+def test_a_slow_samplers_cached_pool_is_extended_to_the_pool_drawn_whole(cache):
+    small = make_pool("gbn", "ot", 4, 2, seed=5)
+    grown = make_pool("gbn", "ot", 4, 5, seed=5)  # draws sets 2-4 only
+    np.testing.assert_array_equal(grown[:2], small)
+    assert len(list(cache.glob("*.npy"))) == 2
+    for path in cache.glob("*.npy"):
+        path.unlink()
+    np.testing.assert_array_equal(make_pool("gbn", "ot", 4, 5, seed=5), grown)
+
+
 def _is_translate(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether b = a + v (mod 1) as point sets for some vector v."""
     for j in range(len(a)):

@@ -244,6 +244,27 @@ def test_training_pools_are_uniformised(monkeypatch, tmp_path):
         replace(data, density_fit="kde")
 
 
+def test_mirrored_pools_hold_each_set_and_its_mirror(monkeypatch, tmp_path):
+    from tests.conftest import tiny_config
+    from trainer.data import Batches, make_pool
+    from diffsampler_rt.grid import decode
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path))
+    cfg = tiny_config(sampler="rank1", embedding="ot")
+    data = replace(cfg.data, pool_sizes=(6, 3), density_bins=4, mirror_diagonal=True)
+    batches = Batches(data, seed=1)
+    raw = {k: decode(make_pool("rank1", "ot", k, p, 1)) for k, p in zip((4, 8), (6, 3))}
+    both = {k: np.concatenate([p, p[..., ::-1]]) for k, p in raw.items()}
+    table = fit_density(both[8], 4)  # fitted to the sets and their mirrors
+    assert batches.density == table
+    for k, pts in both.items():
+        assert len(batches.pools[k]) == 2 * len(raw[k])
+        got = np.sort(decode(batches.pools[k]), axis=1)
+        np.testing.assert_allclose(got, np.sort(unwarp(pts, table), axis=1), atol=1e-6)
+    with pytest.raises(ValueError, match="mirror_diagonal needs density_bins"):
+        replace(data, density_bins=0)
+
+
 def test_density_goes_from_training_to_the_card(monkeypatch, tmp_path, capsys):
     from tests.conftest import tiny_config
     from export.onnx_export import export_checkpoint

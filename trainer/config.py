@@ -47,12 +47,21 @@ class DataConfig:
     #: mass added to every cell of the density table, a fraction of the mean cell mass
     #: (trainer.density.FLOOR; sot_ramp and gbn_blob were trained with 1e-3)
     density_floor: float = FLOOR
+    #: with density_bins: every pooled set is also learned mirrored in the diagonal
+    #: (x <-> y) before the density fit and the map to the square, doubling the pool for
+    #: non-uniform samplers whose distribution that mirror keeps (gbn_blob: GBN on the
+    #: torus thinned by a density symmetric in x and y). The grid symmetries cannot stand
+    #: in for it: the map to the square does not commute with them
+    mirror_diagonal: bool = False
 
     def __post_init__(self) -> None:
         from .density import FITS, check_floor
         if self.density_fit not in FITS:
             raise ValueError(f"density_fit must be one of {FITS}, got {self.density_fit!r}")
         check_floor("density_floor", self.density_floor)
+        if self.mirror_diagonal and not self.density_bins:
+            raise ValueError("mirror_diagonal needs density_bins > 0 (uniform samplers: "
+                             "symmetries 0-7 mirror the grid itself)")
 
 
 @dataclass(frozen=True)

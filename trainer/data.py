@@ -15,7 +15,7 @@ from diffsampler_rt.grid import decode
 from .config import DataConfig
 from .density import FLOOR, fit_density, fit_density_legendre, fit_density_log_legendre
 from .embedding import embed, symmetries
-from .samplers import TOROIDAL, sample
+from .samplers import SLOW, TOROIDAL, sample
 
 #: sets drawn per call of the sampler when a pool is built (also the unit of the RNG streams)
 CHUNK = 64
@@ -38,14 +38,26 @@ def _pool_chunk(sampler: str, embedding: str, k: int, count: int, seed: int, sta
     return embed(pts, embedding)
 
 
+def _cached_prefix(root: Path, stem: str, count: int) -> np.ndarray | None:
+    """The largest cached pool of ``stem`` with fewer than ``count`` sets, or None."""
+    best = None
+    for path in root.glob(f"{stem}_*.npy"):
+        m = re.fullmatch(rf"{re.escape(stem)}_(\d+)\.npy", path.name)
+        if m and int(m.group(1)) < count and (best is None or int(m.group(1)) > best[0]):
+            best = (int(m.group(1)), path)
+    return None if best is None else np.load(best[1])
+
+
 def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
               progress: bool = False, shifts: int = 1, workers: int = 1) -> np.ndarray:
     """``count`` reference sets embedded on the k x k grid: float32 (count * shifts, 2, k, k).
 
     Deterministic in the arguments and cached on disk under :func:`cache_dir`. A pool of
     fewer sets is the prefix of a larger one with the same arguments (sets come from
-    per-set child streams), so a cached larger pool is reused. ``workers`` processes draw
-    the sets of the slow samplers; the pool does not depend on it.
+    per-set child streams), so a cached larger pool is reused, and a cached smaller pool
+    of a slow sampler (without shifts) is extended by the sets it lacks: the result is the
+    pool drawn from scratch, set for set. ``workers`` processes draw the sets of the slow
+    samplers; the pool does not depend on it.
     """
     if shifts > 1 and sampler not in TOROIDAL:
         raise ValueError(f"shifts={shifts}: sampler {sampler!r} is not translation invariant "
@@ -58,13 +70,19 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
         if m and int(m.group(1)) >= count:
             return np.load(path, mmap_mode="r")[: count * shifts].copy()
     rng = np.random.default_rng([seed, k])
-    chunks = range(0, count, CHUNK)
+    have = _cached_prefix(root, stem, count) if sampler in SLOW and shifts == 1 else None
+    start = 0 if have is None else len(have)
+    # a slow sampler's set i is the i-th child stream spawned from rng: spawning the cached
+    # sets' streams (without drawing them) puts the next set on the stream it would have had
+    rng.spawn(start)
+    chunks = range(start, count, CHUNK)
     if progress:
         from tqdm import tqdm
         chunks = tqdm(chunks, desc=f"pool {sampler} k={k}", unit="chunk", leave=False)
-    pool = np.concatenate([_pool_chunk(sampler, embedding, k, min(CHUNK, count - s), seed, s,
-                                       shifts, rng, workers)
-                           for s in chunks]).astype(np.float32)
+    pool = np.concatenate(([] if have is None else [have])
+                          + [_pool_chunk(sampler, embedding, k, min(CHUNK, count - s), seed, s,
+                                         shifts, rng, workers)
+                             for s in chunks]).astype(np.float32)
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"{stem}_{count}.npy"
     tmp = path.with_suffix(f".tmp{os.getpid()}.npy")
@@ -76,14 +94,18 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
 def uniformise(pools: dict[int, np.ndarray], embedding: str, bins: int,
                sides: tuple[int, ...] = (), fit: str = "histogram",
                max_degree: int = 16,
-               floor: float = FLOOR) -> tuple[dict[int, np.ndarray], dict[str, list]]:
+               floor: float = FLOOR,
+               mirror: bool = False) -> tuple[dict[int, np.ndarray], dict[str, list]]:
     """Fit the density to the pooled sets of ``sides`` (default: the largest side) and
-    re-embed every pool after the density's map to the uniform square."""
+    re-embed every pool after the density's map to the uniform square. ``mirror``: each
+    pool is first followed by its sets mirrored in the diagonal (x <-> y)."""
     sides = sides or (max(pools),)
     if not set(sides) <= set(pools):
         raise ValueError(f"density_sides {list(sides)} must be among the pooled sides "
                          f"{sorted(pools)}")
     points = {k: decode(p) for k, p in pools.items()}
+    if mirror:
+        points = {k: np.concatenate([p, p[..., ::-1]]) for k, p in points.items()}
     smooth = {"legendre": fit_density_legendre, "log_legendre": fit_density_log_legendre}
     if fit in smooth:
         # the degree: what the sets of every pooled size share (their edge effects differ)
@@ -120,7 +142,8 @@ class Batches:
                                  "and shifts = 1: the density is fitted to the pooled sets")
             self.pools, self.density = uniformise(self.pools, cfg.embedding, cfg.density_bins,
                                                   cfg.density_sides, cfg.density_fit,
-                                                  cfg.density_max_degree, cfg.density_floor)
+                                                  cfg.density_max_degree, cfg.density_floor,
+                                                  cfg.mirror_diagonal)
 
     def draw(self, rng: np.random.Generator) -> list[np.ndarray]:
         """One float32 array (B_k, 2, k, k) per size, offsets times the offset scale."""
