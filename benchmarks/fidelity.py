@@ -646,6 +646,8 @@ def model_card_text(c: dict) -> str:
         data = ", ".join(f"{p} sets at k = {k}" for k, p in zip(d.get("sizes", []), pools))
         if d.get("shifts", 1) > 1:
             data += f", each also under {d['shifts'] - 1} random toroidal shifts"
+        if d.get("mirror_diagonal"):
+            data += ", each also mirrored in the diagonal (x <-> y)"
     else:
         data = "fresh sets every step"
     sym = d.get("symmetries", [0])

@@ -38,14 +38,11 @@ def _pool_chunk(sampler: str, embedding: str, k: int, count: int, seed: int, sta
     return embed(pts, embedding)
 
 
-def _cached_prefix(root: Path, stem: str, count: int) -> np.ndarray | None:
-    """The largest cached pool of ``stem`` with fewer than ``count`` sets, or None."""
-    best = None
-    for path in root.glob(f"{stem}_*.npy"):
-        m = re.fullmatch(rf"{re.escape(stem)}_(\d+)\.npy", path.name)
-        if m and int(m.group(1)) < count and (best is None or int(m.group(1)) > best[0]):
-            best = (int(m.group(1)), path)
-    return None if best is None else np.load(best[1])
+def _cached_pools(root: Path, stem: str) -> dict[int, Path]:
+    """The cached pools of ``stem`` by their number of sets."""
+    found = (re.fullmatch(rf"{re.escape(stem)}_(\d+)\.npy", p.name)
+             for p in root.glob(f"{stem}_*"))
+    return {int(m.group(1)): root / m.group(0) for m in found if m}
 
 
 def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
@@ -65,12 +62,13 @@ def make_pool(sampler: str, embedding: str, k: int, count: int, seed: int,
     key = json.dumps([sampler, embedding, k, seed, shifts])
     stem = f"{sampler}_{embedding}_k{k}_x{shifts}_{hashlib.sha1(key.encode()).hexdigest()[:10]}"
     root = cache_dir()
-    for path in sorted(root.glob(f"{stem}_*.npy")):
-        m = re.fullmatch(rf"{re.escape(stem)}_(\d+)\.npy", path.name)
-        if m and int(m.group(1)) >= count:
-            return np.load(path, mmap_mode="r")[: count * shifts].copy()
+    cached = _cached_pools(root, stem)
+    if any(c >= count for c in cached):
+        path = cached[min(c for c in cached if c >= count)]
+        return np.load(path, mmap_mode="r")[: count * shifts].copy()
     rng = np.random.default_rng([seed, k])
-    have = _cached_prefix(root, stem, count) if sampler in SLOW and shifts == 1 else None
+    have = (np.load(cached[max(cached)]) if cached and sampler in SLOW and shifts == 1
+            else None)
     start = 0 if have is None else len(have)
     # a slow sampler's set i is the i-th child stream spawned from rng: spawning the cached
     # sets' streams (without drawing them) puts the next set on the stream it would have had
