@@ -119,8 +119,10 @@ def _histograms(unwarped: np.ndarray, bins: int) -> np.ndarray:
     """Per set: the counts of its points in the bins x bins cells of the square,
     shape (sets, bins^2)."""
     idx = np.minimum((unwarped * bins).astype(int), bins - 1)
-    flat = idx[..., 1] * bins + idx[..., 0]
-    return np.stack([np.bincount(f, minlength=bins * bins) for f in flat.reshape(-1, flat.shape[-1])])
+    cells = (idx[..., 1] * bins + idx[..., 0]).reshape(-1, unwarped.shape[-2])
+    # one bincount for all sets: set s counts into its own block of bins^2 cells
+    at = cells + bins * bins * np.arange(len(cells))[:, None]
+    return np.bincount(at.ravel(), minlength=len(cells) * bins * bins).reshape(len(cells), -1)
 
 
 def mean_density(unwarped: np.ndarray, bins: int = 8) -> np.ndarray:

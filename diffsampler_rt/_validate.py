@@ -73,10 +73,10 @@ def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or 
 
     ``form`` says which shapes are taken, e.g. ``"(n, 2)"``, ``"(sets, n, 2)"``,
     ``"(n, 2) or (sets, n, 2)"``, ``"(..., n, 2)"`` or ``"(..., 2)"`` (points in any layout,
-    a lone point too; any names); ``min_n`` is the fewest points a set may have. A ValueError names a wrong shape, the count of non-finite
-    coordinates, or the range of coordinates outside the unit square: every finishing step
-    and statistic here is defined on the unit square (or torus), where a NaN would otherwise
-    pass through as silent garbage.
+    a lone point too; any names); ``min_n`` is the fewest points a set may have. A ValueError
+    names a wrong shape, the count of non-finite coordinates, or the range of coordinates
+    outside the unit square: every finishing step and statistic here is defined on the unit
+    square (or torus), where a NaN would otherwise pass through as silent garbage.
     """
     try:
         pts = np.asarray(points, dtype=np.float64)
