@@ -88,6 +88,19 @@ def test_bundled_recipes_load():
             assert cfg.unet == TrainConfig.load(path.with_name(f"{previous}.json")).unet
 
 
+def test_recipes_starting_from_bundled_models_load_them():
+    # a bundled model re-exported with another architecture (e.g. attention windows) must
+    # not silently break the recipes that start from it (gbn_blob's did, for a while)
+    from pathlib import Path
+    from trainer.train import initial_weights
+    from trainer.unet import UNet
+    starts = [TrainConfig.load(p) for p in sorted(Path("trainer/configs").glob("*.json"))]
+    starts = [c for c in starts if c.init_from and Path(c.init_from).is_file()]
+    assert {c.name for c in starts} >= {"gbn_blob", "gbn_torus", "sot_ramp"}
+    for cfg in starts:
+        UNet(cfg.unet).load_state_dict(initial_weights(cfg))  # strict: every weight fits
+
+
 def test_second_stage_starts_from_the_exported_weights(tiny_onnx, tmp_path):
     from dataclasses import replace
     from .conftest import TINY_ONNX_UNET
