@@ -507,11 +507,13 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
                                     "model_sha256": old["model_sha256"]})
         row.pop("reproduced", None)  # stop_if_stale has just checked it again
         rows[n] = row
-    if rows and not r["rows"]:
-        # nothing measured now (``--sizes`` with no size: the file changed where no square
-        # size's sets do, e.g. a card's restore cut): the plot's example sets, made at the
-        # smallest size
-        n = min(rows)
+    shown = [n for n in PLOT_SIZES if n in rows]  # kept rows whose spectra the plot shows
+    if rows and (shown or not r["rows"]) and not any(n in r["rows"] for n in PLOT_SIZES):
+        # the kept rows have no example sets: made anew for the plot at the size whose
+        # spectrum it shows first (e.g. after a re-measure at 64 only), or at the smallest
+        # size when nothing is measured now (``--sizes`` with no size: the file changed where
+        # no square size's sets do, e.g. a card's restore cut)
+        n = shown[0] if shown else min(rows)
         model = diffsampler_rt.load(r["name"])
         rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
                    "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}

@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -411,3 +413,24 @@ def test_speed_report_only_keeps_the_measuring_run_date(tmp_path):
     assert last_run_date(md) is None
     md.write_text("# Generation speed\n\n`python benchmarks/speed.py` on 2026-11-28: 2 cores\n")
     assert last_run_date(md) == "2026-11-28"
+
+
+def test_fidelity_merge_draws_the_plot_examples_at_the_size_it_shows(tmp_path):
+    # kept rows carry no example sets: a re-measure at 64 alone must not leave 64-point
+    # examples under the kept 1024-point spectrum
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.fidelity import merge_kept
+    (tmp_path / "fidelity").mkdir()
+    kept = {"date": "2026-01-01", "settings": {"seed": 1}, "model_sha256": "x",
+            "rows": {"64": {"mae": 0.1}, "1024": {"mae": 0.2}}}
+    (tmp_path / "fidelity" / "rank1.json").write_text(json.dumps(kept))
+    now = {"name": "rank1", "sampler": "rank1",
+           "rows": {64: {"mae": 0.3, "example_gen": np.zeros((64, 2))}}}
+    merged = merge_kept(now, tmp_path, seed=1)
+    assert merged["rows"][64]["mae"] == 0.3 and merged["rows"][1024]["mae"] == 0.2
+    assert merged["rows"][1024]["example_gen"].shape == (1024, 2)
+    assert merged["rows"][1024]["example_ref"].shape == (1024, 2)
+    # measured at a size the plot shows: its own examples, nothing drawn for the kept rows
+    now = {"name": "rank1", "sampler": "rank1",
+           "rows": {1024: {"mae": 0.3, "example_gen": np.zeros((1024, 2))}}}
+    assert "example_gen" not in merge_kept(now, tmp_path, seed=1)["rows"][64]
