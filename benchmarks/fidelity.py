@@ -325,7 +325,7 @@ def evaluate(pool, name: str, a) -> dict:
     stored = (stored_reference(a.out, name, a.sizes, sampler,
                                None if source is True else source) if source else None)
     # one fresh reference set for the plot's examples: at the size the plot prefers
-    example_n = next((n for n in (*PLOT_SIZES, *a.sizes) if n in a.sizes), None)
+    example_n = next((n for n in PLOT_SIZES if n in a.sizes), a.sizes[0] if a.sizes else None)
     for n in a.sizes:
         if stored:
             res["rows"][n] = against_stored(pool, model, n, a, stored[n],
@@ -507,13 +507,14 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
                                     "model_sha256": old["model_sha256"]})
         row.pop("reproduced", None)  # stop_if_stale has just checked it again
         rows[n] = row
-    shown = [n for n in PLOT_SIZES if n in rows]  # kept rows whose spectra the plot shows
-    if rows and (shown or not r["rows"]) and not any(n in r["rows"] for n in PLOT_SIZES):
-        # the kept rows have no example sets: made anew for the plot at the size whose
-        # spectrum it shows first (e.g. after a re-measure at 64 only), or at the smallest
-        # size when nothing is measured now (``--sizes`` with no size: the file changed where
-        # no square size's sets do, e.g. a card's restore cut)
-        n = shown[0] if shown else min(rows)
+    # the kept rows have no example sets; the measured ones have. Unless a size the plot
+    # shows is measured now, they are made anew for the plot at the first kept size it shows
+    # (e.g. after a re-measure at 64 only), or at the smallest size when nothing is measured
+    # now (``--sizes`` with no size: the file changed where no square size's sets do, e.g. a
+    # card's restore cut)
+    shown = [n for n in PLOT_SIZES if n in rows]
+    n = shown[0] if shown else (min(rows) if rows and not r["rows"] else None)
+    if n is not None and not any(m in r["rows"] for m in PLOT_SIZES):
         model = diffsampler_rt.load(r["name"])
         rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
                    "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}
