@@ -96,3 +96,17 @@ def cached_sets(pool, name: str, n: int, count: int, seed: int):
     np.savez(tmp, pts=pts, per_set=per_set)
     tmp.replace(path)
     return pts, per_set, False
+
+
+def example_reference(name: str, n: int, seed: int) -> np.ndarray:
+    """One reference set of sampler ``name`` at ``n`` for a plot: the first set of the first
+    cached reference file of that size (by name), else a fresh draw from ``seed``. The slow
+    samplers take minutes a set at n = 4096, and an example needs no set of its own."""
+    files = sorted(f for f in (cache_dir() / "reference").glob(f"{name}_n{n}_c*_s*.npz")
+                   if "_stats" not in f.name and not f.name.endswith(".tmp.npz"))
+    for f in files:
+        with np.load(f) as z:
+            if "pts" in z.files and len(z["pts"]):
+                return np.array(z["pts"][0])
+    return sample(name, n, count=1, seed=seed)[0]
+

@@ -48,8 +48,8 @@ import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
 from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E402
 from diffsampler_rt.low_frequencies import describe as describe_even  # noqa: E402
-from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets, model_hash,  # noqa: E402
-                               reference_path, seed_curve)
+from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets,  # noqa: E402
+                               example_reference, model_hash, reference_path, seed_curve)
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
@@ -401,7 +401,7 @@ def _print_row(name: str, n: int, row: dict) -> None:
 def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
     """A row of ``model`` at n measured now against the reference side of the kept row
     ``kept`` (:func:`stored_reference`): the same counts, the generated sets made now.
-    ``example``: draw one reference set for the plot (the kept row has none)."""
+    ``example``: one reference set for the plot (the kept row has none; a cached one)."""
     sampler = model.card["sampler"]
     count, scount = kept["count"], kept["spectrum_count"]
     gen, gu, gstats, sg, gen_per_set = generated(pool, model, n, count, scount, a)
@@ -411,7 +411,7 @@ def against_stored(pool, model, n: int, a, kept: dict, example: bool) -> dict:
            "spec_gen": sg, "spec_ref": kept["spec_ref"], "reference": kept["reference"]}
     if example:
         row["example_gen"] = gen[0]
-        row["example_ref"] = sample(sampler, n, count=1, seed=a.seed)[0]
+        row["example_ref"] = example_reference(sampler, n, a.seed)
     for k in STATS:
         row[k] = _statistic(gstats[k], kept[k]["ref"], kept[k]["floor"], kept[k]["ref_sets"])
     if "mae_seed_ref" in kept:
@@ -508,7 +508,7 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
         row.pop("reproduced", None)  # stop_if_stale has just checked it again
         rows[n] = row
     # the kept rows have no example sets; the measured ones have. Unless a size the plot
-    # shows is measured now, they are made anew for the plot at the first kept size it shows
+    # shows is measured now, they are made anew (the reference one taken from the cache) for the plot at the first kept size it shows
     # (e.g. after a re-measure at 64 only), or at the smallest size when nothing is measured
     # now (``--sizes`` with no size: the file changed where no square size's sets do, e.g. a
     # card's restore cut)
@@ -517,7 +517,7 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
     if n is not None and not any(m in r["rows"] for m in PLOT_SIZES):
         model = diffsampler_rt.load(r["name"])
         rows[n] = {**rows[n], "example_gen": model.generate(n, 1, seed=seed)[0],
-                   "example_ref": sample(r["sampler"], n, count=1, seed=seed)[0]}
+                   "example_ref": example_reference(r["sampler"], n, seed)}
     rows.update(r["rows"])
     return {**r, "rows": dict(sorted(rows.items()))}
 
@@ -752,7 +752,8 @@ def _stored_note(r: dict) -> list[str]:
     return ["", f"Reference side stored (`--stored-reference`): {runs}. The generated sets "
             "were made and measured anew against that run's kept reference figures (mean "
             "spectrum, per-set statistics of batch A, floors, time per set); the example "
-            "reference set in the plot is a fresh draw."]
+            "reference set in the plot is a cached reference set of its size, or a fresh draw "
+            "where none is cached."]
 
 
 def _structure_text(c: dict) -> str:

@@ -434,3 +434,21 @@ def test_fidelity_merge_draws_the_plot_examples_at_the_size_it_shows(tmp_path):
     now = {"name": "rank1", "sampler": "rank1",
            "rows": {1024: {"mae": 0.3, "example_gen": np.zeros((1024, 2))}}}
     assert "example_gen" not in merge_kept(now, tmp_path, seed=1)["rows"][64]
+
+
+def test_plot_example_reference_comes_from_the_cache_when_it_has_one(tmp_path, monkeypatch):
+    # the slow samplers take minutes a set at 4096: a plot's example reuses a cached set
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.common import example_reference, reference_path
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path))
+    fresh = example_reference("sobol_owen", 64, seed=3)
+    assert fresh.shape == (64, 2) and np.all((fresh >= 0) & (fresh < 1))
+    cached = np.random.default_rng(0).random((4, 64, 2))
+    path = reference_path("sobol_owen", 64, 4, 9)
+    path.parent.mkdir(parents=True)
+    np.savez(path, pts=cached, per_set=0.1)
+    # neither a stats file nor another size is taken for the sets
+    np.savez(path.parent / "sobol_owen_n64_c4_s1_first2_stats_v1.npz", ot_energy=np.ones(4))
+    np.savez(reference_path("sobol_owen", 256, 4, 1), pts=np.zeros((4, 256, 2)), per_set=0.1)
+    np.testing.assert_array_equal(example_reference("sobol_owen", 64, seed=3), cached[0])
+    assert example_reference("sobol_owen", 256, seed=3).shape == (256, 2)
