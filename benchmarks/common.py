@@ -109,4 +109,3 @@ def example_reference(name: str, n: int, seed: int) -> np.ndarray:
             if "pts" in z.files and len(z["pts"]):
                 return np.array(z["pts"][0])
     return sample(name, n, count=1, seed=seed)[0]
-

@@ -53,7 +53,7 @@ from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets,  # noqa: E4
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
-from trainer.samplers import SLOW, sample  # noqa: E402
+from trainer.samplers import SLOW  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.density import OLD_FLOOR  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
@@ -508,10 +508,10 @@ def merge_kept(r: dict, out: Path, seed: int) -> dict:
         row.pop("reproduced", None)  # stop_if_stale has just checked it again
         rows[n] = row
     # the kept rows have no example sets; the measured ones have. Unless a size the plot
-    # shows is measured now, they are made anew (the reference one taken from the cache) for the plot at the first kept size it shows
+    # shows is measured now, they are made anew for the plot at the first kept size it shows
     # (e.g. after a re-measure at 64 only), or at the smallest size when nothing is measured
     # now (``--sizes`` with no size: the file changed where no square size's sets do, e.g. a
-    # card's restore cut)
+    # card's restore cut); the reference one comes from the cache where it can
     shown = [n for n in PLOT_SIZES if n in rows]
     n = shown[0] if shown else (min(rows) if rows and not r["rows"] else None)
     if n is not None and not any(m in r["rows"] for m in PLOT_SIZES):
