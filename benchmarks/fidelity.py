@@ -324,7 +324,8 @@ def evaluate(pool, name: str, a) -> dict:
     source = getattr(a, "stored_reference", None)
     stored = (stored_reference(a.out, name, a.sizes, sampler,
                                None if source is True else source) if source else None)
-    # one fresh reference set for the plot's examples: at the size the plot prefers
+    # one reference set for the plot's examples (cached where it can): at the size the plot
+    # prefers
     example_n = next((n for n in PLOT_SIZES if n in a.sizes), a.sizes[0] if a.sizes else None)
     for n in a.sizes:
         if stored:
