@@ -58,6 +58,10 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     if fmt is None:
         suffix = args.output.suffix.lstrip(".").lower() if args.output else ""
         fmt = suffix if suffix in FORMATS else "txt"
+    if fmt == "npy" and args.output is None and sys.stdout.isatty():
+        # checked before the (possibly long) generation, not after it
+        raise ValueError("refusing to write binary .npy data to a terminal; give -o FILE.npy "
+                         "or redirect stdout")
     model = load(args.model)
     show = args.count is not None and args.count > 1 and sys.stderr.isatty()
     pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,

@@ -35,6 +35,19 @@ def test_generate_to_stdout(capsys):
     assert len(lines) == 16 and all(len(l.split()) == 2 for l in lines)
 
 
+def test_npy_to_a_terminal_is_refused(monkeypatch, capsys):
+    class Terminal:  # stands in for an interactive stdout
+        buffer = None
+
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stdout", Terminal())
+    assert main(["generate", "rank1", "64", "--format", "npy"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "terminal" in err[0] and "-o" in err[0]
+
+
 def test_generate_any_n(tmp_path):
     out = tmp_path / "pts.npy"
     assert main(["generate", "gbn_fast", "1000", "--count", "2", "--seed", "3", "-o",
