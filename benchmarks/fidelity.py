@@ -50,6 +50,7 @@ from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E40
 from diffsampler_rt.low_frequencies import describe as describe_even  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets,  # noqa: E402
                                example_reference, model_hash, reference_path, seed_curve)
+from diffsampler_rt.guidance import describe as describe_guide  # noqa: E402
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
@@ -687,6 +688,8 @@ def model_card_text(c: dict) -> str:
             + (f"Distillation: {c['provenance']}. " if c.get("distillation") else "")
             + "Sampling: "
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
+            + (f", guided by {describe_guide(c['guide'])} (diffsampler_rt.guidance)"
+               if c.get("guide") else "")
             + ("; the starting noise's coarse modes scaled: "
                f"{describe_coarse(c['coarse_noise'])} (diffsampler_rt.coarse_noise)"
                if c.get("coarse_noise") else "")

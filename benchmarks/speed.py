@@ -159,7 +159,7 @@ def measure(a, kept: dict | None = None) -> dict:
             print(f"{name} n={n}: alone {fmt_s(r['alone_s'])}, batch "
                   f"{fmt_s(r.get('batch_s_per_set'))}/set, peak {r['peak_mib']:.0f} MiB, "
                   f"reference {fmt_s(r.get('ref_s'))} {r.get('ref_note', '')}", flush=True)
-        results[name] = {"sampler": sampler, "rows": rows}
+        results[name] = {"sampler": sampler, "rows": rows, "date": dt.date.today().isoformat()}
     return results
 
 
@@ -170,13 +170,26 @@ def last_run_date(md: Path) -> str | None:
     return m.group(1) if m else None
 
 
+def _dates_text(results: dict, date: str) -> str:
+    """"2026-12-02", or, where models' latest runs differ, "2026-12-02 (sot), 2026-11-28
+    (the other 21 models)": each model's rows come from its latest run (speed.json)."""
+    by_date: dict[str, list[str]] = {}
+    for m, r in results.items():
+        by_date.setdefault(r.get("date", "an earlier date"), []).append(m)
+    if len(by_date) < 2:  # one date, or none recorded (a speed.json from before dates)
+        return date if "an earlier date" in by_date or not by_date else next(iter(by_date))
+    parts = sorted(by_date.items(), key=lambda kv: len(kv[1]))
+    head = [f"{d} ({', '.join(ms)})" for d, ms in parts[:-1]]
+    return ", ".join(head) + f", {parts[-1][0]} (the other {len(parts[-1][1])} models)"
+
+
 def report(results: dict, a, date: str) -> None:
     fid_path = ROOT / "benchmarks" / "results" / "fidelity.json"
     fid = json.loads(fid_path.read_text()) if fid_path.exists() else {}
     lines = [
         "# Generation speed vs the reference samplers",
         "",
-        f"`python benchmarks/speed.py` on {date}: {os.cpu_count()} cores "
+        f"`python benchmarks/speed.py` on {_dates_text(results, date)}: {os.cpu_count()} cores "
         f"({platform.processor() or platform.machine()}), onnxruntime "
         f"{_ort_version()}, intra-op threads: {a.threads or 'onnxruntime default (all cores)'}. "
         "Each figure comes from a fresh process that does nothing else (median of "
@@ -309,7 +322,8 @@ def main() -> None:
 def merge_kept(old: dict, new: dict) -> dict:
     """speed.json's kept results with this run's on top, size by size: a run over some
     sizes of a model replaces those rows and keeps the model's others."""
-    out = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()}}
+    out = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()},
+               **({"date": r["date"]} if "date" in r else {})}
            for m, r in old.items()}
     for m, r in new.items():
         rows = {**out.get(m, {}).get("rows", {}), **r["rows"]}

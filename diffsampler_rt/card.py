@@ -12,6 +12,7 @@ from . import per_size
 from .coarse_noise import settings_problem as coarse_problem
 from .density import check_table
 from .errors import ModelFormatError
+from .guidance import settings_problem as guide_problem
 from .low_frequencies import restore_cut_problem
 from .low_frequencies import settings_problem as even_problem
 from .schedule import betas
@@ -114,6 +115,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: structure {structure!r} cannot guide the solver "
                                "(structure_guidance must be 0 or absent)")
     if "sliced_ot" in card and (problem := sliced_problem(card["sliced_ot"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
+    if "guide" in card and (problem := guide_problem(card["guide"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
         raise ModelFormatError(f"{source}: model card field {problem}")

@@ -103,6 +103,7 @@ def _cmd_list(args: argparse.Namespace) -> None:
         origin = f", distilled from {distilled['teacher']}" if distilled else ""
         origin += ", 8-bit convolutions" if card.get("weights") == "int8" else ""
         origin += ", toroidal sets" if card.get("padding") == "circular" else ""
+        origin += f", guided by {card['guide']['model']}" if card.get("guide") else ""
         print(f"{name:<{width}} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
               f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
               f"({size:.1f} MiB{origin})")
@@ -138,8 +139,9 @@ def main(argv: list[str] | None = None) -> int:
                         "structure (sobol_owen, ldbn, rank1, lattice), no sliced-OT polish "
                         "(SOT models), no evening out at large scales (GBN, Poisson "
                         "disk), no minimum spacing (blue-noise models), white starting "
-                        "noise where the card shapes it (ldbn, sobol_owen), thinned sets "
-                        "restored with the runtime's default cut (not the card's)")
+                        "noise where the card shapes it (ldbn, sobol_owen), no guide "
+                        "model (sot), thinned sets restored with the runtime's default cut "
+                        "(not the card's)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")

@@ -18,6 +18,7 @@ from .density import warp
 from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
 from .grid import decode, encode_stratified, wrap
+from .guidance import check_compatible, guide_path, guided, weight_at
 from .lattice import nearest_rank1_lattice
 from .low_frequencies import RESTORE_CUT, even_out
 from .metadata import WireFormatError, read_metadata
@@ -105,6 +106,20 @@ class Model:
         if names != {"x", "t"}:
             raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")
         self.alpha_bar = alphas_cumprod(self.card["schedule"])
+        self._threads = threads
+        self._guide: Model | None = None
+
+    def guide(self) -> "Model | None":
+        """The model this one's card is guided by (``"guide"``, loaded on first use;
+        :mod:`diffsampler_rt.guidance`), or None."""
+        spec = self.card.get("guide")
+        if spec is None:
+            return None
+        if self._guide is None:
+            guide = Model(guide_path(spec, self.path, MODELS_DIR), threads=self._threads)
+            check_compatible(self.card, guide.card, str(self.path))
+            self._guide = guide
+        return self._guide
 
     def _session(self, opts: "ort.SessionOptions") -> "ort.InferenceSession":
         try:
@@ -184,9 +199,12 @@ class Model:
             back in a strip of its own cell, which keeps most of the spacing).
             Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
             of the solver's starting noise, so that the sets vary at large scales as
-            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`).
-            ``False`` returns the network's sets as decoded, from white noise (thinned to
-            n points where n is not a square, restored below 0.25 sqrt(n)).
+            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`), and ``"guide"``
+            (sot) steers every solver step away from a weaker model of the same sampler
+            (autoguidance, two network evaluations a step;
+            :mod:`diffsampler_rt.guidance`).
+            ``False`` returns the network's sets as decoded, unguided, from white noise
+            (thinned to n points where n is not a square, restored below 0.25 sqrt(n)).
             A non-uniform model's density (card field ``"density"``) is part of the model,
             not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
             So is a toroidal model's shift: a net with circular padding (``"padding":
@@ -263,13 +281,18 @@ class Model:
         # a thinned set's large scales restored from its full one up to this (a card's own
         # cut is a tuning like the ones above; without them the runtime's default)
         restore = self.card.get("restore_cut", RESTORE_CUT) if structure else RESTORE_CUT
+        guide = self.card.get("guide") if structure else None
+        weight = weight_at(guide, k * k) if guide else 0.0
+        if weight:
+            self.guide()  # a missing or mismatched guide fails here, before any work
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, relattice, spacing, sliced, shaping, evening, restore)
+                            imposed, relattice, spacing, sliced, shaping, evening, restore,
+                            weight)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int, shaping: tuple[float, float] | None,
-                evening: tuple[float, float] | None, restore: float):
+                evening: tuple[float, float] | None, restore: float, weight: float):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -280,15 +303,17 @@ class Model:
         toroidal = self.card.get("padding") == "circular"
         scale = float(self.card["offset_scale"])
         eps_fn = self.denoise
-        guided = self.card.get("structure_guidance", 0) if imposed else 0
-        if guided:
+        if weight:  # autoguidance by the card's weaker model
+            eps_fn = guided(self.denoise, self.guide().denoise, weight)
+        guided_steps = self.card.get("structure_guidance", 0) if imposed else 0
+        if guided_steps:
             def project(x0: np.ndarray) -> np.ndarray:
                 pts = impose_unchecked(decode(x0 / scale, stratified=True), k,
                                        self.card["structure"])
                 return encode_stratified(pts, k) * scale
 
-            eps_fn = project_x0(self.denoise, self.alpha_bar, project,
-                                ts[max(0, len(ts) - guided):])
+            eps_fn = project_x0(eps_fn, self.alpha_bar, project,
+                                ts[max(0, len(ts) - guided_steps):])
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])

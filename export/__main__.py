@@ -5,8 +5,9 @@
 [--structure-guidance L] [--structure-sides K,K,...]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
-[--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]``:
-change the sampling defaults in an exported model's card.
+[--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
+[--guide NAME|none [--guide-weight W|N:W,...]]``: change the sampling defaults in an
+exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
 density with another floor (the share of uniform mass in each cell).
@@ -77,6 +78,13 @@ def set_defaults_main(argv: list[str]) -> int:
                    help="where n is not a square, restore the thinned set's density from the "
                         "full set's below C sqrt(n), 0 < C <= 2 (none: the runtime's "
                         "default, 0.25)")
+    p.add_argument("--guide", metavar="NAME|none",
+                   help="autoguidance by a weaker model of the same sampler: NAME.onnx next "
+                        "to the model, or a bundled model (its sha256 goes into the card; "
+                        "none: remove)")
+    p.add_argument("--guide-weight", metavar="W|N:W,N:W,...",
+                   help="guidance weight (default 1; with --guide); N:W pairs give W per size "
+                        "(linear in log n between them)")
     args = p.parse_args(argv)
     coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
     even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
@@ -118,9 +126,20 @@ def set_defaults_main(argv: list[str]) -> int:
             print(f"error: --restore-cut must be a number or none, got {restore!r}",
                   file=sys.stderr)
             return 2
+    guide = args.guide
+    if args.guide_weight is not None and (guide is None or guide == "none"):
+        print("error: --guide-weight needs --guide NAME", file=sys.stderr)
+        return 2
+    if guide is not None and guide != "none":
+        weight = 1.0 if args.guide_weight is None else _table_arg(
+            args.guide_weight, "weight", float, "--guide-weight", "a number", "N:W")
+        if weight is None:
+            return 2
+        guide = {"model": guide, **(weight if isinstance(weight, dict) else {"weight": weight})}
     if _missing(args.model):
         return 2
     from diffsampler_rt.coarse_noise import describe as describe_coarse
+    from diffsampler_rt.guidance import describe as describe_guide
     from diffsampler_rt.low_frequencies import RESTORE_CUT
     from diffsampler_rt.low_frequencies import describe as describe_even
     from diffsampler_rt.sliced_ot import describe as describe_sliced
@@ -134,7 +153,7 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure_guidance=args.structure_guidance,
                             structure_sides=sides, sliced_ot=sliced,
                             min_spacing=spacing, coarse_noise=coarse, even_out=even,
-                            restore_cut=restore)
+                            restore_cut=restore, guide=guide)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -144,7 +163,8 @@ def set_defaults_main(argv: list[str]) -> int:
           f"min spacing {describe_spacing(card.get('min_spacing'))}, "
           f"coarse noise {describe_coarse(card.get('coarse_noise'))}, "
           f"even out {describe_even(card.get('even_out'))}, "
-          f"restore cut {card.get('restore_cut', RESTORE_CUT):g} sqrt(n)")
+          f"restore cut {card.get('restore_cut', RESTORE_CUT):g} sqrt(n), "
+          f"guide {describe_guide(card.get('guide'))}")
     return 0
 
 

@@ -7,7 +7,8 @@ projected onto the clean-set prediction of the last ``structure_guidance`` solve
 nearest rank-1 lattice (``diffsampler_rt.lattice``), a
 few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing
 (``diffsampler_rt.spacing``; the coefficient comes from the training sets,
-``python -m trainer spacing CONFIG``);
+``python -m trainer spacing CONFIG``); with ``guide`` every solver step is steered away
+from a weaker model (``diffsampler_rt.guidance``);
 and with ``coarse_noise`` the solver's starting noise has its coarse Fourier modes scaled
 (``diffsampler_rt.coarse_noise``);
 they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
@@ -15,6 +16,7 @@ they are edited in place rather than baked in at export.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -49,13 +51,15 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
                  even_out: dict | str | None = None,
-                 restore_cut: float | str | None = None) -> dict:
+                 restore_cut: float | str | None = None,
+                 guide: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
-    ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` of the card in
-    ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT polish, a
-    spacing, a noise gain, an evening-out or a restore cut, which then is the runtime's
-    default); returns the card."""
+    ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
+    card in ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT
+    polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
+    runtime's default, or a guide); returns the card. A ``guide`` without ``"sha256"`` gets
+    that of the guide's file (next to ``path``, else bundled), which must exist."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -97,12 +101,27 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card.pop("restore_cut", None)
         elif restore_cut is not None:
             card["restore_cut"] = restore_cut
+        if guide == "none":
+            card.pop("guide", None)
+        elif guide is not None:
+            card["guide"] = _with_digest(guide, Path(path))
         if min_spacing == "none":
             card.pop("min_spacing", None)
         elif min_spacing is not None:
             card["min_spacing"] = min_spacing
 
     return edit_card(path, edit)
+
+
+def _with_digest(guide: dict, path: Path) -> dict:
+    """``guide`` with the sha256 of its file (checked for form first: a bad name is
+    reported as such, not as a missing file)."""
+    from diffsampler_rt.guidance import guide_path, settings_problem
+    from diffsampler_rt.model import MODELS_DIR
+    if "sha256" in guide or settings_problem(guide):
+        return guide  # the card check that follows reports the problem
+    found = guide_path(guide, path.resolve(), MODELS_DIR)
+    return {**guide, "sha256": hashlib.sha256(found.read_bytes()).hexdigest()}
 
 
 def set_density_floor(path: str | Path, floor: float) -> dict:

@@ -177,6 +177,20 @@ def test_speed_results_merge_size_by_size():
     assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
 
 
+def test_speed_report_dates_each_models_latest_run():
+    """The report's header says which models' rows a run measured and which are older."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.speed import _dates_text, merge_kept
+    old = {"sot": {"sampler": "sot", "rows": {}, "date": "2026-11-28"},
+           "gbn": {"sampler": "gbn", "rows": {}, "date": "2026-11-28"},
+           "ldbn": {"sampler": "ldbn", "rows": {}, "date": "2026-11-28"}}
+    merged = merge_kept(old, {"sot": {"sampler": "sot", "rows": {}, "date": "2026-12-02"}})
+    assert merged["gbn"]["date"] == "2026-11-28" and merged["sot"]["date"] == "2026-12-02"
+    assert _dates_text(merged, "2026-12-02") == "2026-12-02 (sot), 2026-11-28 (the other 2 models)"
+    assert _dates_text(old, "2026-12-02") == "2026-11-28"
+    assert _dates_text({"a": {"rows": {}}}, "2026-12-02") == "2026-12-02"
+
+
 def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
     # a slow reference stopped at the first size timed must not be started (and stopped
     # after 4x the budget) again at every larger size
