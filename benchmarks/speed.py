@@ -173,12 +173,13 @@ def last_run_date(md: Path) -> str | None:
 def _dates_text(results: dict, date: str) -> str:
     """"2026-12-02", or, where models' latest runs differ, "2026-12-02 (sot), 2026-11-28
     (the other 21 models)": each model's rows come from its latest run (speed.json)."""
-    by_date: dict[str, list[str]] = {}
+    by_date: dict[str | None, list[str]] = {}
     for m, r in results.items():
-        by_date.setdefault(r.get("date", "an earlier date"), []).append(m)
+        by_date.setdefault(r.get("date"), []).append(m)
     if len(by_date) < 2:  # one date, or none recorded (a speed.json from before dates)
-        return date if "an earlier date" in by_date or not by_date else next(iter(by_date))
-    parts = sorted(by_date.items(), key=lambda kv: len(kv[1]))
+        return next(iter(by_date), None) or date
+    parts = [(d or "an earlier date", ms) for d, ms in sorted(by_date.items(),
+                                                              key=lambda kv: len(kv[1]))]
     head = [f"{d} ({', '.join(ms)})" for d, ms in parts[:-1]]
     return ", ".join(head) + f", {parts[-1][0]} (the other {len(parts[-1][1])} models)"
 

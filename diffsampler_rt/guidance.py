@@ -104,11 +104,16 @@ def guide_path(spec: dict, model_path: Path, bundled_dir: Path) -> Path:
                                f"it nor among the bundled models")
     digest = spec.get("sha256")
     if digest is not None:
-        actual = hashlib.sha256(path.read_bytes()).hexdigest()
+        actual = file_sha256(path)
         if actual != digest:
             raise ModelFormatError(f"{model_path}: its guide {path} has sha256 {actual}, the "
                                    f"card was tuned with {digest}")
     return path
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of a file, as a card's ``"guide"`` records it."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def check_compatible(card: dict, guide_card: dict, source: str) -> None:

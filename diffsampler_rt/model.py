@@ -116,7 +116,9 @@ class Model:
         if spec is None:
             return None
         if self._guide is None:
-            guide = Model(guide_path(spec, self.path, MODELS_DIR), threads=self._threads)
+            path = guide_path(spec, self.path, MODELS_DIR)
+            # the cached one where the threads are the default: a guide is loaded once
+            guide = load(path) if self._threads is None else Model(path, threads=self._threads)
             check_compatible(self.card, guide.card, str(self.path))
             self._guide = guide
         return self._guide

@@ -16,7 +16,6 @@ they are edited in place rather than baked in at export.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -116,12 +115,12 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
 def _with_digest(guide: dict, path: Path) -> dict:
     """``guide`` with the sha256 of its file (checked for form first: a bad name is
     reported as such, not as a missing file)."""
-    from diffsampler_rt.guidance import guide_path, settings_problem
+    from diffsampler_rt.guidance import file_sha256, guide_path, settings_problem
     from diffsampler_rt.model import MODELS_DIR
     if "sha256" in guide or settings_problem(guide):
         return guide  # the card check that follows reports the problem
     found = guide_path(guide, path.resolve(), MODELS_DIR)
-    return {**guide, "sha256": hashlib.sha256(found.read_bytes()).hexdigest()}
+    return {**guide, "sha256": file_sha256(found)}
 
 
 def set_density_floor(path: str | Path, floor: float) -> dict:
