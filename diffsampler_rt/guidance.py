@@ -92,16 +92,17 @@ def describe(spec: dict | None) -> str:
 
 
 def guide_path(spec: dict, model_path: Path, bundled_dir: Path) -> Path:
-    """The guide's file: ``NAME.onnx`` next to the model, else the bundled one; its
-    sha256 checked where the card gives one."""
+    """The guide's file: ``NAME.onnx`` next to the model, else a bundled model, else a
+    bundled guide (``bundled_dir/guides``: networks shipped only to guide others, so not
+    listed as models); its sha256 checked where the card gives one."""
     name = spec["model"]
-    for folder in (model_path.parent, bundled_dir):
+    for folder in (model_path.parent, bundled_dir, bundled_dir / "guides"):
         path = folder / f"{name}.onnx"
         if path.is_file():
             break
     else:
         raise ModelFormatError(f"{model_path}: its guide model {name!r} was not found next to "
-                               f"it nor among the bundled models")
+                               f"it nor among the bundled models and guides")
     digest = spec.get("sha256")
     if digest is not None:
         actual = file_sha256(path)

@@ -61,10 +61,11 @@ def set_defaults_main(argv: list[str]) -> int:
                    help="finish with K sliced-OT iterations (SOT models); N:K pairs give K per "
                         "size (linear in log n between them, rounded); none: remove")
     p.add_argument("--sliced-ot-directions", type=int, metavar="D",
-                   help="directions per sliced-OT iteration (default 64; with --sliced-ot)")
+                   help="directions per sliced-OT iteration (default: the card's, else 64; "
+                        "with --sliced-ot)")
     p.add_argument("--sliced-ot-step", type=float, metavar="S",
-                   help="scale every sliced-OT move by S, 0 < S <= 2 (default 1: the "
-                        "sampler's own update; with --sliced-ot)")
+                   help="scale every sliced-OT move by S, 0 < S <= 2 (default: the card's, "
+                        "else 1, the sampler's own update; with --sliced-ot)")
     _gain_table_flags(p, "--coarse-noise",
                       "scale the coarse Fourier modes of the solver's starting noise by G "
                       "(> 1: sets vary more at large scales)",
@@ -96,13 +97,14 @@ def set_defaults_main(argv: list[str]) -> int:
         if value is not None and (sliced is None or sliced == "none"):
             print(f"error: --sliced-ot-{flag} needs --sliced-ot K or N:K,...", file=sys.stderr)
             return 2
-    directions = 64 if args.sliced_ot_directions is None else args.sliced_ot_directions
     if sliced is not None and sliced != "none":
         table = _table_arg(sliced, "iterations", _whole, "--sliced-ot", "an integer", "N:K")
         if table is None:
             return 2
-        sliced = {"directions": directions,
-                  **(table if isinstance(table, dict) else {"iterations": table})}
+        # directions and step not given: the card's (set_defaults), else 64 and 1
+        sliced = table if isinstance(table, dict) else {"iterations": table}
+        if args.sliced_ot_directions is not None:
+            sliced["directions"] = args.sliced_ot_directions
         if args.sliced_ot_step is not None:
             sliced["step"] = args.sliced_ot_step
     sides = args.structure_sides

@@ -58,7 +58,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     card in ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT
     polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without ``"sha256"`` gets
-    that of the guide's file (next to ``path``, else bundled), which must exist."""
+    that of the guide's file (next to ``path``, else bundled), which must exist. A
+    ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64 and 1)."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
@@ -87,7 +88,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         if sliced_ot == "none":
             card.pop("sliced_ot", None)
         elif sliced_ot is not None:
-            card["sliced_ot"] = sliced_ot
+            # new iterations keep the card's directions and step unless given (else 64, 1)
+            kept = {key: value for key, value in card.get("sliced_ot", {}).items()
+                    if key in ("directions", "step")}
+            card["sliced_ot"] = {"directions": 64, **kept, **sliced_ot}
         if coarse_noise == "none":
             card.pop("coarse_noise", None)
         elif coarse_noise is not None:

@@ -109,3 +109,20 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
         diffsampler_rt.Model(path).generate(64, 1, seed=0)
     assert export_main(["set-defaults", str(path), "--guide", "none"]) == 0
     assert "guide" not in diffsampler_rt.Model(path).card
+
+
+def test_bundled_guides_are_found_but_not_listed():
+    """Networks shipped only to guide others (models/guides/) are found by the cards that
+    name them, are each used by some bundled model, and are not offered as models."""
+    from diffsampler_rt.errors import UnknownModelError
+    from diffsampler_rt.model import MODELS_DIR
+    guides = sorted(p.stem for p in (MODELS_DIR / "guides").glob("*.onnx"))
+    assert "sot_32_guide" in guides
+    assert not set(guides) & set(diffsampler_rt.list_models())
+    with pytest.raises(UnknownModelError, match="sot_32_guide"):
+        diffsampler_rt.load("sot_32_guide")
+    used = {diffsampler_rt.load(name).card.get("guide", {}).get("model")
+            for name in diffsampler_rt.list_models()}
+    assert set(guides) <= used
+    model = diffsampler_rt.Model(diffsampler_rt.load("sot_32").path)
+    assert model.guide().path == MODELS_DIR / "guides" / "sot_32_guide.onnx"

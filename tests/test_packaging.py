@@ -27,6 +27,7 @@ def test_wheel_contents(wheel):
     assert {t for t in tops if not t.endswith(".dist-info")} == {"diffsampler_rt"}
     assert "diffsampler_rt/models/rank1.onnx" in names
     assert "diffsampler_rt/models/sobol_owen.onnx" in names
+    assert "diffsampler_rt/models/guides/sot_32_guide.onnx" in names  # sot_32's guide
 
 
 def test_wheel_requires_only_numpy_and_onnxruntime(wheel):
@@ -39,7 +40,7 @@ def test_wheel_requires_only_numpy_and_onnxruntime(wheel):
 
 
 def test_bundled_models_are_small():
-    for path in (ROOT / "diffsampler_rt" / "models").glob("*.onnx"):
+    for path in (ROOT / "diffsampler_rt" / "models").rglob("*.onnx"):  # guides/ included
         assert path.stat().st_size <= 4_000_000, path.name
 
 

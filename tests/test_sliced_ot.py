@@ -119,8 +119,8 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
                                   polished)
     assert export_main(["set-defaults", str(path), "--sliced-ot", "1.5"]) == 2
     assert export_main(["set-defaults", str(path), "--sliced-ot-directions", "8"]) == 2
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "3"]) == 0
-    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 64, "iterations": 3}
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "3"]) == 0  # keeps the 16
+    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 16, "iterations": 3}
     assert export_main(["set-defaults", str(path), "--sliced-ot", "none"]) == 0
     assert "sliced_ot" not in diffsampler_rt.Model(path).card
 
@@ -160,6 +160,9 @@ def test_card_polish_step(tiny_onnx, tmp_path, capsys):
     np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False),
                                   diffsampler_rt.Model(tiny_onnx).generate(256, 2, seed=3))
     assert not np.allclose(relaxed, plain) and np.all((relaxed >= 0) & (relaxed < 1))
+    assert export_main(["set-defaults", str(path), "--sliced-ot", "5"]) == 0  # step kept
+    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 64, "iterations": 5,
+                                                            "step": 1.5}
     assert export_main(["set-defaults", str(path), "--sliced-ot-step", "1.5"]) == 2
     assert "--sliced-ot-step needs --sliced-ot" in capsys.readouterr().err
     assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
