@@ -241,9 +241,7 @@ def report(results: dict, a, date: str) -> None:
     out = ROOT / "benchmarks" / "results"
     out.mkdir(parents=True, exist_ok=True)
     (out / "speed.md").write_text("\n".join(lines))
-    (out / "speed.json").write_text(json.dumps(
-        {m: {"sampler": res["sampler"], "rows": {str(n): r for n, r in res["rows"].items()}}
-         for m, res in results.items()}, indent=1))
+    (out / "speed.json").write_text(json.dumps(kept_json(results), indent=1))
     plot(results, out / "speed.png")
     print(f"wrote {out / 'speed.md'}")
 
@@ -318,6 +316,14 @@ def main() -> None:
     if a.report_only:  # measures nothing: the header keeps the date of the last measuring run
         date = last_run_date(ROOT / "benchmarks" / "results" / "speed.md") or date
     report(dict(sorted(results.items())), a, date)
+
+
+def kept_json(results: dict) -> dict:
+    """speed.json's content: per model its sampler, its rows by n and the date of its latest
+    run (which the next run's header needs, so it is kept with the rows)."""
+    return {m: {"sampler": res["sampler"], "rows": {str(n): r for n, r in res["rows"].items()},
+                **({"date": res["date"]} if "date" in res else {})}
+            for m, res in results.items()}
 
 
 def merge_kept(old: dict, new: dict) -> dict:

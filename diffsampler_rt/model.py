@@ -69,8 +69,9 @@ class Model:
 
     Notes
     -----
-    A model whose card asks for a sliced-OT polish runs onnxruntime without spinning idle
-    workers, so the polish's threads get the cores (the card is read from the file before
+    A model whose card asks for a sliced-OT polish or a guide (and the guide itself) runs
+    onnxruntime without spinning idle workers, so the polish's threads and the other
+    network get the cores (the card is read from the file before
     the session is made: :mod:`diffsampler_rt.metadata`).
 
     Examples
@@ -97,10 +98,11 @@ class Model:
         self.card: dict[str, Any] = parse_card(meta, str(self.path))
         # the polish sorts on every core right after the network; onnxruntime's idle
         # workers spin for a while after each run and would take those cores (sot_fast,
-        # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it)
-        polishing = bool(self.card.get("sliced_ot"))
-        if session is None or polishing:
-            session = self._session(session_options(threads, spinning=not polishing))
+        # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it); a
+        # guided model's network takes turns with its guide's in the same way
+        quiet = _alternates(self.card)
+        if session is None or quiet:
+            session = self._session(session_options(threads, spinning=not quiet))
         self.session = session
         names = {i.name for i in self.session.get_inputs()}
         if names != {"x", "t"}:
@@ -117,8 +119,7 @@ class Model:
             return None
         if self._guide is None:
             path = guide_path(spec, self.path, MODELS_DIR)
-            # the cached one where the threads are the default: a guide is loaded once
-            guide = load(path) if self._threads is None else Model(path, threads=self._threads)
+            guide = _cached_guide(str(path), path.stat().st_mtime, self._threads)
             check_compatible(self.card, guide.card, str(self.path))
             self._guide = guide
         return self._guide
@@ -378,6 +379,23 @@ def session_options(threads: int | None = None, *,
 @lru_cache(maxsize=16)
 def _cached(path: str, mtime: float) -> Model:
     return Model(path)
+
+
+def _alternates(card: dict) -> bool:
+    """Whether a model's network runs take turns with other work on the same cores (a
+    sliced-OT polish, or a guide's network): then its session must not spin."""
+    return bool(card.get("sliced_ot") or card.get("guide"))
+
+
+@lru_cache(maxsize=8)
+def _cached_guide(path: str, mtime: float, threads: int | None) -> Model:
+    """A guide, loaded once per file and thread count, with a session that does not spin:
+    it takes turns with the guided model's (sot_32 at n = 1024, batch of 32: 232-242 ms a
+    set with the guide's workers spinning, 193-198 ms without)."""
+    guide = Model(path, threads=threads)
+    if not _alternates(guide.card):
+        guide.session = guide._session(session_options(threads, spinning=False))
+    return guide
 
 
 def load(model: str | os.PathLike | Model) -> Model:

@@ -180,13 +180,16 @@ def test_speed_results_merge_size_by_size():
 def test_speed_report_dates_each_models_latest_run():
     """The report's header says which models' rows a run measured and which are older."""
     sys.path.insert(0, str(ROOT))
-    from benchmarks.speed import _dates_text, merge_kept
+    from benchmarks.speed import _dates_text, kept_json, merge_kept
     old = {"sot": {"sampler": "sot", "rows": {}, "date": "2026-11-28"},
            "gbn": {"sampler": "gbn", "rows": {}, "date": "2026-11-28"},
            "ldbn": {"sampler": "ldbn", "rows": {}, "date": "2026-11-28"}}
     merged = merge_kept(old, {"sot": {"sampler": "sot", "rows": {}, "date": "2026-12-02"}})
     assert merged["gbn"]["date"] == "2026-11-28" and merged["sot"]["date"] == "2026-12-02"
     assert _dates_text(merged, "2026-12-02") == "2026-12-02 (sot), 2026-11-28 (the other 2 models)"
+    # the dates survive speed.json, so the next run's header still has them
+    again = merge_kept(json.loads(json.dumps(kept_json(merged))), {})
+    assert {m: r["date"] for m, r in again.items()} == {m: r["date"] for m, r in merged.items()}
     assert _dates_text(old, "2026-12-02") == "2026-11-28"
     assert _dates_text({"a": {"rows": {}}}, "2026-12-02") == "2026-12-02"
 

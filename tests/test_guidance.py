@@ -113,7 +113,8 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
 
 def test_bundled_guides_are_found_but_not_listed():
     """Networks shipped only to guide others (models/guides/) are found by the cards that
-    name them, are each used by some bundled model, and are not offered as models."""
+    name them, are each used by some bundled model, and are not offered as models; a guide
+    is loaded once and its session does not spin."""
     from diffsampler_rt.errors import UnknownModelError
     from diffsampler_rt.model import MODELS_DIR
     guides = sorted(p.stem for p in (MODELS_DIR / "guides").glob("*.onnx"))
@@ -126,3 +127,8 @@ def test_bundled_guides_are_found_but_not_listed():
     assert set(guides) <= used
     model = diffsampler_rt.Model(diffsampler_rt.load("sot_32").path)
     assert model.guide().path == MODELS_DIR / "guides" / "sot_32_guide.onnx"
+    assert diffsampler_rt.Model(diffsampler_rt.load("sot_32").path).guide() is model.guide()
+    # the two networks take turns: neither session's idle workers spin
+    spin = "session.intra_op.allow_spinning"
+    for session in (model.session, model.guide().session):
+        assert session.get_session_options().get_session_config_entry(spin) == "0"
