@@ -20,8 +20,10 @@ it.
 Card value: ``{"model": NAME, "weight": W}`` or ``{"model": NAME, "n": [sizes], "weight":
 [W per size]}`` (linear in log n between the sizes, the end values beyond), with an
 optional ``"sha256"`` of the guide's file: the weights were chosen against that file, and
-another one is refused. NAME is an ``.onnx`` file next to the model's own, or else a
-bundled model; the guide must have the model's noise schedule, embedding and offset scale.
+another one is refused. NAME is an ``.onnx`` file next to the model's own, else a
+bundled model, else a bundled guide (``models/guides/``; ``sot_32`` is guided by
+``sot_32_guide``, a half-width net trained briefly on its 32 sets); the guide must have
+the model's noise schedule, embedding, offset scale, prediction and padding.
 """
 from __future__ import annotations
 
@@ -118,8 +120,9 @@ def file_sha256(path: Path) -> str:
 
 
 def check_compatible(card: dict, guide_card: dict, source: str) -> None:
-    """Raise ModelFormatError unless the guide shares the model's schedule, embedding and
-    offset scale (its eps must mean the same thing at the same x and t)."""
+    """Raise ModelFormatError unless the guide shares the model's schedule, embedding,
+    offset scale, prediction and padding (its eps must mean the same thing at the same x
+    and t)."""
     for key in ("schedule", "embedding", "offset_scale", "prediction", "padding"):
         if card.get(key) != guide_card.get(key):
             raise ModelFormatError(f"{source}: guide {guide_card.get('name')!r} has {key} "

@@ -84,7 +84,8 @@ class Model:
     (2, 64, 2)
     """
 
-    def __init__(self, model: str | os.PathLike, *, threads: int | None = None):
+    def __init__(self, model: str | os.PathLike, *, threads: int | None = None,
+                 _quiet: bool = False):
         self.path = resolve(model)
         threads = None if threads is None else _validate.integer("threads", threads)
         try:  # the card first: the session's options depend on it
@@ -100,7 +101,7 @@ class Model:
         # workers spin for a while after each run and would take those cores (sot_fast,
         # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it); a
         # guided model's network takes turns with its guide's in the same way
-        quiet = _alternates(self.card)
+        quiet = _quiet or _alternates(self.card)  # _quiet: a guide (_cached_guide)
         if session is None or quiet:
             session = self._session(session_options(threads, spinning=not quiet))
         self.session = session
@@ -392,10 +393,7 @@ def _cached_guide(path: str, mtime: float, threads: int | None) -> Model:
     """A guide, loaded once per file and thread count, with a session that does not spin:
     it takes turns with the guided model's (sot_32 at n = 1024, batch of 32: 232-242 ms a
     set with the guide's workers spinning, 193-198 ms without)."""
-    guide = Model(path, threads=threads)
-    if not _alternates(guide.card):
-        guide.session = guide._session(session_options(threads, spinning=False))
-    return guide
+    return Model(path, threads=threads, _quiet=True)
 
 
 def load(model: str | os.PathLike | Model) -> Model:

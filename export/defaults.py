@@ -58,8 +58,9 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     card in ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT
     polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without ``"sha256"`` gets
-    that of the guide's file (next to ``path``, else bundled), which must exist. A
-    ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64 and 1)."""
+    that of the guide's file (next to ``path``, else a bundled model or guide), which must
+    exist. A ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64
+    and 1)."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
