@@ -19,8 +19,11 @@ it.
 
 Card value: ``{"model": NAME, "weight": W}`` or ``{"model": NAME, "n": [sizes], "weight":
 [W per size]}`` (linear in log n between the sizes, the end values beyond), with an
-optional ``"sha256"`` of the guide's file: the weights were chosen against that file, and
-another one is refused. NAME is an ``.onnx`` file next to the model's own, else a
+optional ``"network_sha256"`` of the guide's network (its file less the metadata,
+:func:`diffsampler_rt.metadata.network_sha256`, so that editing the guide's own card does
+not orphan the models it guides): the weights were chosen against that network, and
+another one is refused. Cards written before it may carry ``"sha256"``, the digest of the
+guide's whole file, which is checked as such. NAME is an ``.onnx`` file next to the model's own, else a
 bundled model, else a bundled guide (``models/guides/``; ``sot_32`` is guided by
 ``sot_32_guide``, a half-width net trained briefly on its 32 sets); the guide must have
 the model's noise schedule, embedding, offset scale, prediction and padding.
@@ -35,6 +38,7 @@ import numpy as np
 
 from . import per_size
 from .errors import ModelFormatError
+from .metadata import network_sha256
 
 #: largest weight a card may ask for (measured on sot: past ~1.5 the spectrum gets worse)
 MAX_WEIGHT = 4.0
@@ -50,17 +54,18 @@ def settings_problem(spec: Any) -> str | None:
     """None if ``spec`` is a valid ``"guide"`` card value, else why (starting with the
     field's name)."""
     form = ("'guide' must be {\"model\": NAME, \"weight\": W} or {\"model\": NAME, \"n\": "
-            "[sizes], \"weight\": [W per size]}, optionally with \"sha256\"")
+            "[sizes], \"weight\": [W per size]}, optionally with \"network_sha256\"")
     if not isinstance(spec, dict) or not {"model", "weight"} <= set(spec) <= {
-            "model", "weight", "n", "sha256"}:
+            "model", "weight", "n", *DIGESTS}:
         return f"{form}, got {spec!r}"
     name = spec["model"]
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         return f"'guide' model must be a model name (no directories), got {name!r}"
-    digest = spec.get("sha256")
-    if digest is not None and not (isinstance(digest, str) and len(digest) == 64
-                                   and all(c in "0123456789abcdef" for c in digest)):
-        return f"'guide' sha256 must be 64 lower-case hex digits, got {digest!r}"
+    for key in DIGESTS:
+        digest = spec.get(key)
+        if digest is not None and not (isinstance(digest, str) and len(digest) == 64
+                                       and all(c in "0123456789abcdef" for c in digest)):
+            return f"'guide' {key} must be 64 lower-case hex digits, got {digest!r}"
     weights = spec["weight"]
     if "n" in spec:
         if not (per_size.sizes_ok(spec["n"]) and isinstance(weights, list)
@@ -96,7 +101,7 @@ def describe(spec: dict | None) -> str:
 def guide_path(spec: dict, model_path: Path, bundled_dir: Path) -> Path:
     """The guide's file: ``NAME.onnx`` next to the model, else a bundled model, else a
     bundled guide (``bundled_dir/guides``: networks shipped only to guide others, so not
-    listed as models); its sha256 checked where the card gives one."""
+    listed as models); its digest checked where the card gives one."""
     name = spec["model"]
     for folder in (model_path.parent, bundled_dir, bundled_dir / "guides"):
         path = folder / f"{name}.onnx"
@@ -105,18 +110,22 @@ def guide_path(spec: dict, model_path: Path, bundled_dir: Path) -> Path:
     else:
         raise ModelFormatError(f"{model_path}: its guide model {name!r} was not found next to "
                                f"it nor among the bundled models and guides")
-    digest = spec.get("sha256")
-    if digest is not None:
-        actual = file_sha256(path)
-        if actual != digest:
-            raise ModelFormatError(f"{model_path}: its guide {path} has sha256 {actual}, the "
+    for key, digest_of in DIGESTS.items():
+        digest = spec.get(key)
+        if digest is not None and (actual := digest_of(path)) != digest:
+            raise ModelFormatError(f"{model_path}: its guide {path} has {key} {actual}, the "
                                    f"card was tuned with {digest}")
     return path
 
 
 def file_sha256(path: Path) -> str:
-    """The sha256 of a file, as a card's ``"guide"`` records it."""
+    """The sha256 of a whole file (the older ``"sha256"`` of a card's ``"guide"``)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+#: the digests a card's ``"guide"`` may record, and how each is taken of the guide's file
+DIGESTS: dict[str, Callable[[Path], str]] = {"network_sha256": network_sha256,
+                                             "sha256": file_sha256}
 
 
 def check_compatible(card: dict, guide_card: dict, source: str) -> None:

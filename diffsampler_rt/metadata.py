@@ -1,4 +1,5 @@
-"""Read an ONNX file's metadata (``ModelProto.metadata_props``) without onnxruntime or onnx.
+"""Read an ONNX file's metadata (``ModelProto.metadata_props``) without onnxruntime or onnx,
+and digest the network without them.
 
 The runtime needs the model card before it opens the onnxruntime session, whose options
 depend on it (a model that polishes its sets with sliced OT runs without spinning workers);
@@ -9,6 +10,7 @@ every other top-level field (the graph, ~99 % of the bytes) is skipped by its le
 """
 from __future__ import annotations
 
+import hashlib
 import os
 
 #: ModelProto.metadata_props and StringStringEntryProto's key / value field numbers
@@ -35,23 +37,31 @@ def _varint(buf: memoryview, pos: int) -> tuple[int, int]:
 def _fields(buf: memoryview):
     """(field number, payload) of each field of a message; payload is a memoryview for
     length-delimited fields, None for the others (numbers, which nothing here needs)."""
+    for field, payload, _ in _spans(buf):
+        yield field, payload
+
+
+def _spans(buf: memoryview):
+    """(field number, payload as in :func:`_fields`, the field's whole bytes) of each
+    field of a message."""
     pos = 0
     while pos < len(buf):
+        start = pos
         tag, pos = _varint(buf, pos)
         field, wire = tag >> 3, tag & 7
         if field == 0:
             raise WireFormatError(f"field number 0 at byte {pos}")
         if wire == 0:
             _, pos = _varint(buf, pos)
-            yield field, None
+            yield field, None, buf[start:pos]
         elif wire == 1 or wire == 5:
             pos += 8 if wire == 1 else 4
-            yield field, None
+            yield field, None, buf[start:pos]
         elif wire == 2:
             size, pos = _varint(buf, pos)
             if pos + size > len(buf):
                 raise WireFormatError(f"field {field} runs past the end of the file")
-            yield field, buf[pos:pos + size]
+            yield field, buf[pos:pos + size], buf[start:pos + size]
             pos += size
         else:  # 3, 4: groups (not used by ONNX); 6, 7: invalid
             raise WireFormatError(f"unsupported wire type {wire} at byte {pos}")
@@ -90,3 +100,29 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str]:
                     raise WireFormatError(f"metadata entry is not UTF-8 ({exc})") from None
         out[entry[KEY_FIELD]] = entry[VALUE_FIELD]
     return out
+
+
+def network_sha256(path: str | os.PathLike) -> str:
+    """The sha256 of the ONNX file at ``path`` less its ``metadata_props``: of the network
+    (graph, weights, opsets), not of the model card, so it is the same after a card edit
+    (``python -m export set-defaults``) that leaves the network as it was.
+
+    Raises
+    ------
+    WireFormatError
+        If the file is not a protobuf message.
+
+    Examples
+    --------
+    >>> from diffsampler_rt.model import resolve
+    >>> len(network_sha256(resolve("rank1")))
+    64
+    """
+    with open(path, "rb") as f:
+        buf = memoryview(f.read())
+    digest = hashlib.sha256()
+    for field, _, raw in _spans(buf):
+        if field != METADATA_FIELD:
+            digest.update(raw)
+    return digest.hexdigest()
+

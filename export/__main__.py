@@ -81,8 +81,8 @@ def set_defaults_main(argv: list[str]) -> int:
                         "default, 0.25)")
     p.add_argument("--guide", metavar="NAME|none",
                    help="autoguidance by a weaker model of the same sampler: NAME.onnx next "
-                        "to the model, else a bundled model or guide (its sha256 goes into "
-                        "the card; none: remove)")
+                        "to the model, else a bundled model or guide (the sha256 of its "
+                        "network goes into the card; none: remove)")
     p.add_argument("--guide-weight", metavar="W|N:W,N:W,...",
                    help="guidance weight (default 1; with --guide); N:W pairs give W per size "
                         "(linear in log n between them)")

@@ -57,9 +57,9 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
     card in ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT
     polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
-    runtime's default, or a guide); returns the card. A ``guide`` without ``"sha256"`` gets
-    that of the guide's file (next to ``path``, else a bundled model or guide), which must
-    exist. A ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64
+    runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
+    ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
+    model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64
     and 1)."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
@@ -118,14 +118,15 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
 
 
 def _with_digest(guide: dict, path: Path) -> dict:
-    """``guide`` with the sha256 of its file (checked for form first: a bad name is
+    """``guide`` with the sha256 of its network (checked for form first: a bad name is
     reported as such, not as a missing file)."""
-    from diffsampler_rt.guidance import file_sha256, guide_path, settings_problem
+    from diffsampler_rt.guidance import DIGESTS, guide_path, settings_problem
+    from diffsampler_rt.metadata import network_sha256
     from diffsampler_rt.model import MODELS_DIR
-    if "sha256" in guide or settings_problem(guide):
+    if set(DIGESTS) & set(guide) or settings_problem(guide):
         return guide  # the card check that follows reports the problem
     found = guide_path(guide, path.resolve(), MODELS_DIR)
-    return {**guide, "sha256": file_sha256(found)}
+    return {**guide, "network_sha256": network_sha256(found)}
 
 
 def set_density_floor(path: str | Path, floor: float) -> dict:

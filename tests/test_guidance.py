@@ -28,7 +28,8 @@ DIGEST = "0" * 64
     ({"model": "m", "weight": float("nan")}, "got nan"),
     ({"model": "m", "n": [256, 64], "weight": [1, 2]}, "same length"),
     ({"model": "m", "n": [64, 256], "weight": [1]}, "same length"),
-    ({"model": "m", "weight": 1, "sha256": "ABC"}, "64 lower-case hex digits"),
+    ({"model": "m", "weight": 1, "sha256": "ABC"}, "sha256 must be 64 lower-case hex"),
+    ({"model": "m", "weight": 1, "network_sha256": DIGEST[1:]}, "network_sha256 must be 64"),
 ])
 def test_card_settings_are_validated(spec, message):
     from diffsampler_rt.card import CARD_KEY, parse_card
@@ -37,7 +38,8 @@ def test_card_settings_are_validated(spec, message):
     with pytest.raises(ModelFormatError, match="model card field 'guide'"):
         parse_card({CARD_KEY: json.dumps(card)}, "m")
     assert settings_problem({"model": "m", "n": [64, 1024], "weight": [0, 1],
-                             "sha256": DIGEST}) is None
+                             "network_sha256": DIGEST}) is None
+    assert settings_problem({"model": "m", "weight": 1, "sha256": DIGEST}) is None  # older
 
 
 def test_per_size_weight_and_words():
@@ -61,7 +63,7 @@ def test_guided_denoiser_extrapolates_away_from_the_guide():
 
 
 def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
-    """set-defaults writes the guide with its file's sha256; a model guided by a copy of
+    """set-defaults writes the guide with its network's sha256; a model guided by a copy of
     itself makes the unguided sets (to rounding), guided by another net other sets, where
     its weight is not 0; structure=False leaves the guide out; a changed, missing or
     incompatible guide is refused with its name."""
@@ -75,7 +77,7 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
     assert export_main(["set-defaults", str(path), "--guide", "twin"]) == 0
     assert "guide twin, weight 1" in capsys.readouterr().out
     m = diffsampler_rt.Model(path)
-    assert m.card["guide"]["weight"] == 1 and len(m.card["guide"]["sha256"]) == 64
+    assert m.card["guide"]["weight"] == 1 and len(m.card["guide"]["network_sha256"]) == 64
     np.testing.assert_allclose(m.generate(64, 2, seed=3), plain, atol=1e-6)
 
     assert export_main(["set-defaults", str(path), "--guide", "sot_32",  # the bundled one
@@ -100,7 +102,23 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
         assert err in capsys.readouterr().err
 
     assert export_main(["set-defaults", str(path), "--guide", "twin"]) == 0
-    shutil.copy(diffsampler_rt.load("sot_32").path, tmp_path / "twin.onnx")  # changed file
+    # an edit of the guide's own card leaves it the same network, so still the guide
+    assert export_main(["set-defaults", str(tmp_path / "twin.onnx"), "--steps", "12"]) == 0
+    np.testing.assert_allclose(diffsampler_rt.Model(path).generate(64, 2, seed=3), plain,
+                               atol=1e-6)
+    shutil.copy(diffsampler_rt.load("sot_32").path, tmp_path / "twin.onnx")  # another net
+    with pytest.raises(ModelFormatError, match="twin.onnx has network_sha256"):
+        diffsampler_rt.Model(path).generate(64, 1, seed=0)
+    # a card from before the network digest gives the whole file's, checked as such
+    from diffsampler_rt.guidance import file_sha256
+    from export.defaults import edit_card
+
+    def older(card):
+        card["guide"] = {"model": "twin", "weight": 1, "sha256": file_sha256(
+            tmp_path / "twin.onnx")}
+    edit_card(path, older)
+    assert diffsampler_rt.Model(path).guide().path == tmp_path / "twin.onnx"
+    assert export_main(["set-defaults", str(tmp_path / "twin.onnx"), "--steps", "12"]) == 0
     with pytest.raises(ModelFormatError, match="twin.onnx has sha256"):
         diffsampler_rt.Model(path).generate(64, 1, seed=0)
     shutil.copy(diffsampler_rt.load("ldbn").path, tmp_path / "twin.onnx")
@@ -109,6 +127,19 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
         diffsampler_rt.Model(path).generate(64, 1, seed=0)
     assert export_main(["set-defaults", str(path), "--guide", "none"]) == 0
     assert "guide" not in diffsampler_rt.Model(path).card
+
+
+def test_every_bundled_model_finds_its_guide():
+    """Each bundled card's guide is found and is the network its weights were tuned with
+    (an edit of the guide's own card once orphaned sot: its card held the guide file's
+    sha256), and shares the model's schedule and embedding."""
+    guided_models = [name for name in diffsampler_rt.list_models()
+                     if "guide" in diffsampler_rt.load(name).card]
+    assert {"sot", "sot_32"} <= set(guided_models)
+    for name in guided_models:
+        model = diffsampler_rt.Model(diffsampler_rt.load(name).path)
+        assert "network_sha256" in model.card["guide"], name
+        assert model.guide().card["name"] == model.card["guide"]["model"]
 
 
 def test_bundled_guides_are_found_but_not_listed():

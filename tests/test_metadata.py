@@ -51,5 +51,27 @@ def test_entries_and_edge_cases(tmp_path):
             pass
 
 
+def test_network_digest_leaves_the_card_out(tmp_path):
+    """network_sha256 is the sha256 of the file less its metadata_props (as onnx serialises
+    the model without them): the same after a card edit, another for another network."""
+    onnx = pytest.importorskip("onnx")
+    import hashlib
+    source = MODELS_DIR / "sot_32.onnx"
+    model = onnx.load(str(source))
+    del model.metadata_props[:]
+    bare = model.SerializeToString()
+    assert metadata.network_sha256(source) == hashlib.sha256(bare).hexdigest()
+    (tmp_path / "bare.onnx").write_bytes(bare)
+    assert metadata.network_sha256(tmp_path / "bare.onnx") == metadata.network_sha256(source)
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "note", "a card edit"
+    onnx.save(model, str(tmp_path / "edited.onnx"))
+    assert metadata.network_sha256(tmp_path / "edited.onnx") == metadata.network_sha256(source)
+    assert metadata.network_sha256(MODELS_DIR / "sot.onnx") != metadata.network_sha256(source)
+    (tmp_path / "junk.onnx").write_bytes(b"not an onnx file at all")
+    with pytest.raises(WireFormatError):
+        metadata.network_sha256(tmp_path / "junk.onnx")
+
+
 def test_docstring_examples():
     assert doctest.testmod(metadata).failed == 0
