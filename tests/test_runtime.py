@@ -20,6 +20,16 @@ def test_bundled_models_generate(name, n):
     assert np.all(np.isfinite(pts)) and np.all((pts >= 0) & (pts < 1))
 
 
+@pytest.mark.parametrize("name", list_models())
+def test_every_bundled_model_runs_at_its_card_defaults(name):
+    """Each bundled model makes a set with everything its card asks for (guide, polish,
+    structure, density): a card that cannot run (e.g. a guide it no longer matches) fails
+    here, not in a user's first call. At 256, where every card's settings are on (sot's
+    guide is off at 64)."""
+    pts = generate(name, 256, seed=2)
+    assert pts.shape == (256, 2) and np.all(np.isfinite(pts)) and np.all((pts >= 0) & (pts < 1))
+
+
 def test_count_and_determinism():
     a = generate("rank1", 64, count=3, seed=11, steps=5)
     assert a.shape == (3, 64, 2)
