@@ -100,6 +100,47 @@ def test_teacher_trajectory_rows_are_the_solver_states(tiny_onnx):
         teacher_trajectories(m, 6, 1, teacher_steps=3, student_steps=2, solver="ddim", seed=0)
 
 
+def test_guided_teacher_trajectories_follow_its_card_guide(tiny_onnx, tmp_path, monkeypatch):
+    """With teacher_guidance the trajectories are the guided teacher's, at the card's weight
+    per grid size (0 at k = 4 here: the plain teacher's), and are cached apart."""
+    import shutil
+
+    from diffsampler_rt.guidance import guided
+    from export.__main__ import main as export_main
+    from export.onnx_export import export_model, model_card
+    from trainer.distil import cached_trajectories
+    from trainer.unet import UNet
+    from .conftest import tiny_config
+    torch.manual_seed(1)  # another random net of the same schedule and embedding: the guide
+    cfg = tiny_config(**TINY_ONNX_UNET)
+    net = UNet(cfg.unet).eval()
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    export_model(net, model_card(cfg, training_steps=0), tmp_path / "weak.onnx")
+    teacher = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_onnx, teacher)
+    assert export_main(["set-defaults", str(teacher), "--guide", "weak",
+                        "--guide-weight", "16:0,64:1"]) == 0
+    m = diffsampler_rt.Model(teacher)
+    kw = dict(teacher_steps=4, student_steps=2, solver="ddim", seed=7)
+    plain8, plain4 = (teacher_trajectories(m, k, 3, **kw) for k in (8, 4))
+    guided8 = teacher_trajectories(m, 8, 3, guidance=True, **kw)
+    x = np.random.default_rng([7, 8]).standard_normal((3, 2, 8, 8))
+    ts = timesteps(len(m.alpha_bar), 4)
+    np.testing.assert_allclose(guided8[-1], solve("ddim", guided(m.denoise, m.guide().denoise,
+                                                                 1.0), x, m.alpha_bar, ts),
+                               atol=1e-5)
+    assert np.abs(guided8[-1] - plain8[-1]).max() > 1e-3
+    np.testing.assert_array_equal(teacher_trajectories(m, 4, 3, guidance=True, **kw), plain4)
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    for guidance in (False, True):
+        dc = tiny_distil(teacher, teacher_guidance=guidance, seed=7)
+        tr = cached_trajectories(dc, m, "sha", 8, 3)
+        np.testing.assert_array_equal(tr, guided8 if guidance else plain8)
+    assert len(list((tmp_path / "cache").glob("traj_*.npy"))) == 2
+
+
 def test_config_rejects_steps_that_do_not_nest():
     with pytest.raises(ValueError, match="multiple"):
         DistilConfig(teacher="gbn", name="x", student_steps=8, teacher_steps=20)

@@ -13,8 +13,13 @@ max(SNR, 1), is an option, but here it let the first, near-pure-noise hop domina
 minimum distance), plus optionally the squared differences of the x0 error between
 neighbouring cells (``difference_weight``).
 
+A guided teacher (card ``"guide"``, autoguidance) can be distilled with its guidance
+(``teacher_guidance``): its trajectories then follow (1 + w) eps_teacher - w eps_guide at
+the card's weight for each grid size, so the student learns the guided sets in one network
+evaluation a step, without the guide (guidance distillation, Meng et al. 2023).
+
 Teacher trajectories are deterministic in the seed and cached under
-:func:`trainer.data.cache_dir` (keyed by the teacher file's hash).
+:func:`trainer.data.cache_dir` (keyed by the teacher network's hash, and the guide's).
 """
 from __future__ import annotations
 
@@ -30,6 +35,8 @@ import numpy as np
 import torch
 
 from diffsampler_rt.card import describe_devices
+from diffsampler_rt.guidance import guided, weight_at
+from diffsampler_rt.metadata import network_sha256
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
@@ -84,6 +91,9 @@ class DistilConfig:
     #: a later stage: start from this student export (``.onnx``, e.g. the previous stage's)
     #: instead of the teacher's weights; its card's distillation steps are counted in
     init_from: str | None = None
+    #: follow the teacher's card guide (autoguidance at its weight per size) in the
+    #: trajectories; the student itself runs unguided
+    teacher_guidance: bool = False
 
     def __post_init__(self) -> None:
         for name in ("sizes", "trajectories", "batch_sizes"):
@@ -119,14 +129,24 @@ def hop_times(num_train_steps: int, student_steps: int) -> np.ndarray:
     return np.append(timesteps(num_train_steps, student_steps), -1)
 
 
+def guidance_weight(teacher, k: int) -> float:
+    """The weight of the teacher card's guide at a k x k grid (0: none)."""
+    spec = teacher.card.get("guide")
+    return weight_at(spec, k * k) if spec else 0.0
+
+
 def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
                          student_steps: int, solver: str, seed: int,
-                         batch: int = 64) -> np.ndarray:
+                         batch: int = 64, guidance: bool = False) -> np.ndarray:
     """The teacher's states at the student's timesteps and its final clean sample.
 
     Returns float32 (student_steps + 1, count, 2, k, k): row j is the state at
     ``timesteps(T, student_steps)[j]``, the last row the teacher's output (scaled offsets).
+    ``guidance``: the teacher's denoiser guided as its card says (:func:`guidance_weight`).
     """
+    weight = guidance_weight(teacher, k) if guidance else 0.0
+    denoise = (guided(teacher.denoise, teacher.guide().denoise, weight) if weight
+               else teacher.denoise)
     T = len(teacher.alpha_bar)
     ts = timesteps(T, teacher_steps)
     want = timesteps(T, student_steps)
@@ -142,7 +162,7 @@ def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
         def eps_fn(x: np.ndarray, t: int) -> np.ndarray:
             if t in rows:
                 out[rows[t], start:start + b] = x
-            return teacher.denoise(x, t)
+            return denoise(x, t)
 
         out[-1, start:start + b] = solve(solver, eps_fn, x, teacher.alpha_bar, ts)
     return out
@@ -160,15 +180,20 @@ def network_hash(path: Path) -> str:
 
 def cached_trajectories(cfg: DistilConfig, teacher, teacher_sha1: str, k: int,
                         count: int) -> np.ndarray:
-    """:func:`teacher_trajectories`, cached on disk (keyed by the teacher network's hash)."""
-    key = json.dumps([teacher_sha1, k, count, cfg.teacher_steps,
-                      cfg.student_steps, cfg.teacher_solver, cfg.seed])
+    """:func:`teacher_trajectories`, cached on disk (keyed by the teacher network's hash,
+    and with guidance the guide network's and the weight)."""
+    key = [teacher_sha1, k, count, cfg.teacher_steps, cfg.student_steps, cfg.teacher_solver,
+           cfg.seed]
+    weight = guidance_weight(teacher, k) if cfg.teacher_guidance else 0.0
+    if weight:
+        key += [network_sha256(teacher.guide().path), weight]
+    key = json.dumps(key)
     path = cache_dir() / f"traj_{teacher.name}_k{k}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy"
     if path.exists():
         return np.load(path)
     traj = teacher_trajectories(teacher, k, count, teacher_steps=cfg.teacher_steps,
                                 student_steps=cfg.student_steps, solver=cfg.teacher_solver,
-                                seed=cfg.seed)
+                                seed=cfg.seed, guidance=cfg.teacher_guidance)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npy")
     np.save(tmp, traj)
@@ -292,8 +317,10 @@ class Distiller:
                                 earlier_seconds=self.earlier["seconds"])
             earlier = (f" after {self.earlier['steps']} steps "
                        f"({self.earlier['seconds'] / 60:.0f} min) in earlier stages")
+        guide = self.teacher_card.get("guide") if self.cfg.teacher_guidance else None
+        guided_by = f"; guided by {guide['model']} as its card says" if guide else ""
         provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
-                      f" steps) distilled to {self.cfg.student_steps} DDIM steps with "
+                      f" steps{guided_by}) distilled to {self.cfg.student_steps} DDIM steps with "
                       f"`python -m trainer distil` for {self.step} steps, "
                       f"{self.elapsed / 60:.0f} min on {describe_devices(self.devices)}{earlier}")
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
