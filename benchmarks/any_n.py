@@ -46,7 +46,7 @@ from diffsampler_rt.low_frequencies import RESTORE_CUT  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 MODELS = ("poisson_disk", "poisson_disk_fast", "poisson_disk_torus_fast", "gbn", "gbn_fast",
-          "gbn_torus_fast", "sot", "sot_fast", "sot_32", "sobol_owen", "sobol_owen_fast", "rank1",
+          "gbn_torus_fast", "sot", "sot_fast", "sot_32", "sot_32_fast", "sobol_owen", "sobol_owen_fast", "rank1",
           "lattice")
 SIZES = (200, 1000)
 #: samplers with sets of any n (ldbn's are k x k only)

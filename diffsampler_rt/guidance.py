@@ -23,8 +23,8 @@ optional ``"network_sha256"`` of the guide's network (its file less the metadata
 :func:`diffsampler_rt.metadata.network_sha256`, so that editing the guide's own card does
 not orphan the models it guides): the weights were chosen against that network, and
 another one is refused. Cards written before it may carry ``"sha256"``, the digest of the
-guide's whole file, which is checked as such. NAME is an ``.onnx`` file next to the model's own, else a
-bundled model, else a bundled guide (``models/guides/``; ``sot_32`` is guided by
+guide's whole file, which is checked as such. NAME is an ``.onnx`` file next to the
+model's own, else a bundled model, else a bundled guide (``models/guides/``; ``sot_32`` is guided by
 ``sot_32_guide``, a half-width net trained briefly on its 32 sets); the guide must have
 the model's noise schedule, embedding, offset scale, prediction and padding.
 """

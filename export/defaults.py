@@ -59,8 +59,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
-    model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or ``"step"`` keeps the card's (else 64
-    and 1)."""
+    model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
+    ``"step"`` keeps the card's (else 64 and 1)."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
