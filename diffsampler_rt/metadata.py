@@ -102,10 +102,12 @@ def read_metadata(path: str | os.PathLike) -> dict[str, str]:
     return out
 
 
-def network_sha256(path: str | os.PathLike) -> str:
-    """The sha256 of the ONNX file at ``path`` less its ``metadata_props``: of the network
-    (graph, weights, opsets), not of the model card, so it is the same after a card edit
-    (``python -m export set-defaults``) that leaves the network as it was.
+def network_digest(path: str | os.PathLike, algorithm: str = "sha256") -> str:
+    """The ``hashlib`` digest (hex) of the ONNX file at ``path`` less its
+    ``metadata_props``: of the network (graph, weights, opsets), not of the model card, so
+    it is the same after a card edit (``python -m export set-defaults``) that leaves the
+    network as it was. The bytes are those onnx serialises for the model without its
+    metadata.
 
     Raises
     ------
@@ -115,14 +117,18 @@ def network_sha256(path: str | os.PathLike) -> str:
     Examples
     --------
     >>> from diffsampler_rt.model import resolve
-    >>> len(network_sha256(resolve("rank1")))
-    64
+    >>> len(network_digest(resolve("rank1"))), len(network_digest(resolve("rank1"), "sha1"))
+    (64, 40)
     """
     with open(path, "rb") as f:
         buf = memoryview(f.read())
-    digest = hashlib.sha256()
+    digest = hashlib.new(algorithm)
     for field, _, raw in _spans(buf):
         if field != METADATA_FIELD:
             digest.update(raw)
     return digest.hexdigest()
 
+
+def network_sha256(path: str | os.PathLike) -> str:
+    """:func:`network_digest` in sha256: how a card's ``"guide"`` pins its guide."""
+    return network_digest(path, "sha256")

@@ -36,7 +36,7 @@ import torch
 
 from diffsampler_rt.card import describe_devices
 from diffsampler_rt.guidance import guided, weight_at
-from diffsampler_rt.metadata import network_sha256
+from diffsampler_rt.metadata import network_digest, network_sha256
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 
@@ -171,11 +171,9 @@ def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
 def network_hash(path: Path) -> str:
     """The short SHA-1 a student's card records for its teacher: of the teacher's ONNX
     network without its metadata, so editing the teacher card's sampling defaults
-    (``python -m export set-defaults``) keeps the record valid."""
-    import onnx
-    model = onnx.load(str(path))
-    del model.metadata_props[:]
-    return hashlib.sha1(model.SerializeToString(deterministic=True)).hexdigest()[:12]
+    (``python -m export set-defaults``) keeps the record valid (the same bytes as onnx
+    serialises without the metadata; read off the file, not parsed)."""
+    return network_digest(path, "sha1")[:12]
 
 
 def cached_trajectories(cfg: DistilConfig, teacher, teacher_sha1: str, k: int,
