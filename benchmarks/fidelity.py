@@ -773,8 +773,11 @@ def _structure_text(c: dict) -> str:
     sides = f" >= {c['structure_min_side']}" if c.get("structure_min_side", 1) > 1 else ""
     guide = (f", and on the clean-set prediction of the last {c['structure_guidance']} solver "
              "steps" if c.get("structure_guidance") else "")
-    return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide} "
-            "(diffsampler_rt.structure)")
+    hot = (f", the solver starting there from noise at temperature "
+           f"{c['structure_temperature']:g} (its coarse modes at the coarse-noise gain)"
+           if "structure_temperature" in c else "")
+    return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide}"
+            f"{hot} (diffsampler_rt.structure)")
 
 
 def _stored_option(source: bool | str | None) -> str:

@@ -10,6 +10,7 @@ from typing import Any, Mapping
 
 from . import per_size
 from .coarse_noise import settings_problem as coarse_problem
+from .coarse_noise import temperature_problem
 from .density import check_table
 from .errors import ModelFormatError
 from .guidance import settings_problem as guide_problem
@@ -120,6 +121,12 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
+    if "structure_temperature" in card:
+        if structure is None:
+            raise ModelFormatError(f"{source}: model card field 'structure_temperature' needs "
+                                   "a structure")
+        if problem := temperature_problem(card["structure_temperature"]):
+            raise ModelFormatError(f"{source}: model card field {problem}")
     if "even_out" in card and (problem := even_problem(card["even_out"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "restore_cut" in card and (problem := restore_cut_problem(card["restore_cut"])):

@@ -203,7 +203,9 @@ class Model:
             back in a strip of its own cell, which keeps most of the spacing).
             Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
             of the solver's starting noise, so that the sets vary at large scales as
-            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`), and ``"guide"``
+            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`; where the structure
+            is imposed, ``"structure_temperature"`` scales every other mode: ldbn_fast
+            0.9), and ``"guide"``
             (sot) steers every solver step away from a weaker model of the same sampler
             (autoguidance, two network evaluations a step;
             :mod:`diffsampler_rt.guidance`).
@@ -279,7 +281,10 @@ class Model:
         polishing = self.card.get("sliced_ot") if structure else None
         sliced = iterations_at(polishing, n, thinned=n < k * k) if polishing else 0
         coarse = self.card.get("coarse_noise") if structure else None
-        shaping = (gain_at(coarse, k * k), cut_at(coarse, k * k)) if coarse else None
+        # where the structure is imposed, every mode but the coarse ones at a temperature
+        hot = self.card.get("structure_temperature", 1.0) if imposed else 1.0
+        shaping = ((gain_at(coarse, k * k), cut_at(coarse, k * k), hot) if coarse
+                   else (hot, 1.0, hot) if hot != 1 else None)
         even = self.card.get("even_out") if structure else None
         evening = (gain_at(even, n), cut_at(even, n)) if even else None
         # a thinned set's large scales restored from its full one up to this (a card's own
@@ -295,7 +300,8 @@ class Model:
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
-                spacing: float | None, sliced: int, shaping: tuple[float, float] | None,
+                spacing: float | None, sliced: int,
+                shaping: tuple[float, float, float] | None,
                 evening: tuple[float, float] | None, restore: float, weight: float):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
@@ -321,7 +327,7 @@ class Model:
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
-            if shaping is not None:  # (gain, cut) of the card's "coarse_noise"
+            if shaping is not None:  # (gain, cut) of the card's "coarse_noise", temperature
                 x = shape_noise(x, *shaping)
 
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:

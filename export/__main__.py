@@ -2,7 +2,7 @@
 
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
-[--structure-guidance L] [--structure-sides K,K,...]
+[--structure-guidance L] [--structure-sides K,K,...] [--structure-temperature T|none]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
 [--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
@@ -53,6 +53,9 @@ def set_defaults_main(argv: list[str]) -> int:
                         "onto the structure (0: only the finished sets)")
     p.add_argument("--structure-sides", metavar="K,K,...",
                    help="impose the structure only at these grid sides")
+    p.add_argument("--structure-temperature", metavar="T|none",
+                   help="where the structure is imposed, scale the solver's starting noise by "
+                        "T (its coarse modes keep the --coarse-noise gain; none: remove)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -115,6 +118,14 @@ def set_defaults_main(argv: list[str]) -> int:
             print(f"error: --structure-sides must be grid sides separated by commas, got "
                   f"{sides!r}", file=sys.stderr)
             return 2
+    temperature = args.structure_temperature
+    if temperature is not None and temperature != "none":
+        try:
+            temperature = float(temperature)
+        except ValueError:
+            print(f"error: --structure-temperature must be a number or none, got "
+                  f"{temperature!r}", file=sys.stderr)
+            return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
@@ -153,7 +164,8 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure=args.structure,
                             structure_min_side=args.structure_min_side,
                             structure_guidance=args.structure_guidance,
-                            structure_sides=sides, sliced_ot=sliced,
+                            structure_sides=sides, structure_temperature=temperature,
+                            sliced_ot=sliced,
                             min_spacing=spacing, coarse_noise=coarse, even_out=even,
                             restore_cut=restore, guide=guide)
     except ValueError as exc:
@@ -206,7 +218,8 @@ def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float)
 
 
 def structure_text(card: dict) -> str:
-    """"n_rooks (k >= 16, guiding 5 steps)", "rank1_lattice (k in 8, 16, 32)", "none"."""
+    """"n_rooks (k >= 16, guiding 5 steps)", "rank1_lattice (k in 8, 16, 32)", "none"
+    (and the starting noise's temperature where the structure has one)."""
     if "structure" not in card:
         return "none"
     notes = [f"k >= {card['structure_min_side']}"] if "structure_min_side" in card else []
@@ -214,6 +227,8 @@ def structure_text(card: dict) -> str:
         notes.append("k in " + ", ".join(map(str, card["structure_sides"])))
     if card.get("structure_guidance"):
         notes.append(f"guiding {card['structure_guidance']} steps")
+    if "structure_temperature" in card:
+        notes.append(f"starting noise at temperature {card['structure_temperature']:g}")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -46,6 +46,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  steps: int | None = None, structure: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
                  structure_sides: list[int] | None = None,
+                 structure_temperature: float | str | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
@@ -53,9 +54,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  restore_cut: float | str | None = None,
                  guide: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
-    ``structure_min_side``, ``structure_guidance`` and ``structure_sides``) / ``sliced_ot`` /
+    ``structure_min_side``, ``structure_guidance``, ``structure_sides`` and
+    ``structure_temperature``) / ``sliced_ot`` /
     ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
-    card in ``path`` (``"none"`` removes a structure, with its three settings, a sliced-OT
+    card in ``path`` (``"none"`` removes a structure, with its four settings, a temperature, a sliced-OT
     polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
@@ -76,7 +78,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card["default_steps"] = steps
         if structure == "none":
             for key in ("structure", "structure_min_side", "structure_guidance",
-                        "structure_sides"):
+                        "structure_sides", "structure_temperature"):
                 card.pop(key, None)
         elif structure is not None:
             card["structure"] = structure
@@ -86,6 +88,10 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card["structure_guidance"] = structure_guidance
         if structure_sides is not None:
             card["structure_sides"] = structure_sides
+        if structure_temperature == "none":
+            card.pop("structure_temperature", None)
+        elif structure_temperature is not None:
+            card["structure_temperature"] = structure_temperature
         if sliced_ot == "none":
             card.pop("sliced_ot", None)
         elif sliced_ot is not None:

@@ -138,3 +138,55 @@ def test_the_bundled_ldbn_gain_brings_its_integration_error_to_the_samplers():
     white = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
     assert white < 0.9 * ref
     assert abs(shaped / ref - 1) < 0.08
+
+
+def test_a_temperature_scales_every_other_mode():
+    x = np.random.default_rng(1).standard_normal((2, 2, 16, 16))
+    y = shape_noise(x, 1.3, 0.25, rest=0.9)
+    X, Y = np.fft.rfft2(x), np.fft.rfft2(y)
+    coarse = coarse_filter(16, 2.0, 0.25) == 2.0
+    np.testing.assert_allclose(Y[..., coarse], 1.3 * X[..., coarse], atol=1e-10)
+    np.testing.assert_allclose(Y[..., ~coarse], 0.9 * X[..., ~coarse], atol=1e-10)  # mean too
+    np.testing.assert_allclose(shape_noise(x, 0.9, 1.0, rest=0.9), 0.9 * x)  # one factor
+
+
+@pytest.mark.parametrize("card_change, message", [
+    ({"structure_temperature": 0.9, "structure": None, "structure_min_side": None,
+      "structure_guidance": None}, "needs a structure"),
+    ({"structure_temperature": 0}, "number in (0, 2], got 0"),
+    ({"structure_temperature": "0.9"}, "got '0.9'"),
+    ({"structure_temperature": True}, "got True"),
+])
+def test_structure_temperature_is_validated(card_change, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = {**diffsampler_rt.load("ldbn_fast").card, **card_change}
+    card = {k: v for k, v in card.items() if v is not None}
+    with pytest.raises(ModelFormatError, match="structure_temperature") as err:
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    assert message in str(err.value)
+
+
+def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, capsys):
+    """set-defaults writes it; the runtime starts the solver from cooler noise at the sizes
+    where the card imposes its structure (ldbn_fast: power-of-two sides >= 16), only there
+    and only with ``structure=True``; ``--structure none`` removes it with the structure."""
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(diffsampler_rt.load("ldbn_fast").path, path)
+    assert export_main(["set-defaults", str(path), "--structure-temperature", "none"]) == 0
+    before = {n: diffsampler_rt.Model(path).generate(n, 2, seed=3) for n in (64, 256, 576)}
+    white = diffsampler_rt.Model(path).generate(256, 2, seed=3, structure=False)
+    capsys.readouterr()
+    assert export_main(["set-defaults", str(path), "--structure-temperature", "0.8"]) == 0
+    assert "starting noise at temperature 0.8" in capsys.readouterr().out
+    m = diffsampler_rt.Model(path)
+    assert m.card["structure_temperature"] == 0.8
+    for n in (64, 576):  # k = 8 below the card's structure_min_side, k = 24 not a power of 2
+        np.testing.assert_array_equal(m.generate(n, 2, seed=3), before[n])
+    cool = m.generate(256, 2, seed=3)
+    assert not np.allclose(cool, before[256])
+    np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False), white)
+    assert export_main(["set-defaults", str(path), "--structure-temperature", "x"]) == 2
+    assert "--structure-temperature must be a number or none" in capsys.readouterr().err
+    assert export_main(["set-defaults", str(path), "--structure", "none"]) == 0
+    assert "structure_temperature" not in diffsampler_rt.Model(path).card
