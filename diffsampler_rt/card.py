@@ -32,6 +32,9 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
             "min_side": int}
 
 
+#: card fields that refine the card's ``"structure"`` and need one (removed with it)
+STRUCTURE_SETTINGS = ("structure_min_side", "structure_guidance", "structure_sides",
+                      "structure_temperature")
 #: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
 #: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
 MAX_SPACING = 1.07
@@ -97,18 +100,16 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
             and card["embedding"] != "stratified"):
         raise ModelFormatError(f"{source}: structure {structure!r} needs the stratified "
                                f"embedding, the card says {card['embedding']!r}")
+    for key in STRUCTURE_SETTINGS:
+        if card.get(key) is not None and structure is None:
+            raise ModelFormatError(f"{source}: model card field {key!r} needs a structure")
     for key, low in (("structure_min_side", 1), ("structure_guidance", 0)):
         value = card.get(key)
-        if value is None:
-            continue
-        if structure is None:
-            raise ModelFormatError(f"{source}: model card field {key!r} needs a structure")
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                  or value < low):
             raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
                                    f">= {low}, got {value!r}")
     sides = card.get("structure_sides")
-    if sides is not None and structure is None:
-        raise ModelFormatError(f"{source}: model card field 'structure_sides' needs a structure")
     if sides is not None and not per_size.sizes_ok(sides):
         raise ModelFormatError(f"{source}: model card field 'structure_sides' must be a list of "
                                f"increasing positive integers (grid sides), got {sides!r}")
@@ -121,12 +122,9 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "coarse_noise" in card and (problem := coarse_problem(card["coarse_noise"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
-    if "structure_temperature" in card:
-        if structure is None:
-            raise ModelFormatError(f"{source}: model card field 'structure_temperature' needs "
-                                   "a structure")
-        if problem := temperature_problem(card["structure_temperature"]):
-            raise ModelFormatError(f"{source}: model card field {problem}")
+    if "structure_temperature" in card and (
+            problem := temperature_problem(card["structure_temperature"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
     if "even_out" in card and (problem := even_problem(card["even_out"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "restore_cut" in card and (problem := restore_cut_problem(card["restore_cut"])):

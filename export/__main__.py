@@ -118,27 +118,17 @@ def set_defaults_main(argv: list[str]) -> int:
             print(f"error: --structure-sides must be grid sides separated by commas, got "
                   f"{sides!r}", file=sys.stderr)
             return 2
-    temperature = args.structure_temperature
-    if temperature is not None and temperature != "none":
-        try:
-            temperature = float(temperature)
-        except ValueError:
-            print(f"error: --structure-temperature must be a number or none, got "
-                  f"{temperature!r}", file=sys.stderr)
-            return 2
+    temperature = _number_or_none(args.structure_temperature, "--structure-temperature")
+    if temperature is False:
+        return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
         if spacing is None:
             return 2
-    restore = args.restore_cut
-    if restore is not None and restore != "none":
-        try:
-            restore = float(restore)
-        except ValueError:
-            print(f"error: --restore-cut must be a number or none, got {restore!r}",
-                  file=sys.stderr)
-            return 2
+    restore = _number_or_none(args.restore_cut, "--restore-cut")
+    if restore is False:
+        return 2
     guide = args.guide
     if args.guide_weight is not None and (guide is None or guide == "none"):
         print("error: --guide-weight needs --guide NAME", file=sys.stderr)
@@ -215,6 +205,18 @@ def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float)
             return False
         cuts = cuts["cut"]
     return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
+
+
+def _number_or_none(value: str | None, flag: str) -> float | str | None | bool:
+    """A flag's number, ``"none"`` or None (not given) as given, or False after saying on
+    stderr (for exit status 2) that ``flag`` takes a number or none."""
+    if value is None or value == "none":
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        print(f"error: {flag} must be a number or none, got {value!r}", file=sys.stderr)
+        return False
 
 
 def structure_text(card: dict) -> str:

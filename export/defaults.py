@@ -21,7 +21,7 @@ from pathlib import Path
 
 import onnx
 
-from diffsampler_rt.card import CARD_KEY, parse_card
+from diffsampler_rt.card import CARD_KEY, STRUCTURE_SETTINGS, parse_card
 from diffsampler_rt.solvers import SOLVERS
 
 
@@ -57,8 +57,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     ``structure_min_side``, ``structure_guidance``, ``structure_sides`` and
     ``structure_temperature``) / ``sliced_ot`` /
     ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
-    card in ``path`` (``"none"`` removes a structure, with its four settings, a temperature, a sliced-OT
-    polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
+    card in ``path`` (``"none"`` removes a structure with its four settings, a temperature, a
+    sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
     model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
@@ -77,8 +77,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         if steps is not None:
             card["default_steps"] = steps
         if structure == "none":
-            for key in ("structure", "structure_min_side", "structure_guidance",
-                        "structure_sides", "structure_temperature"):
+            for key in ("structure", *STRUCTURE_SETTINGS):
                 card.pop(key, None)
         elif structure is not None:
             card["structure"] = structure
