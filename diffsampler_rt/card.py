@@ -34,7 +34,7 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
 
 #: card fields that refine the card's ``"structure"`` and need one (removed with it)
 STRUCTURE_SETTINGS = ("structure_min_side", "structure_guidance", "structure_sides",
-                      "structure_temperature")
+                      "structure_temperature", "structure_block")
 #: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
 #: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
 MAX_SPACING = 1.07
@@ -109,6 +109,12 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
                                   or value < low):
             raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
                                    f">= {low}, got {value!r}")
+    block = card.get("structure_block")
+    if block is not None and (structure != "n_rooks" or isinstance(block, bool)
+                              or not isinstance(block, int) or block < 1 or block & (block - 1)):
+        raise ModelFormatError(f"{source}: model card field 'structure_block' must be a power "
+                               f"of two >= 1 next to the structure 'n_rooks', got {block!r} "
+                               f"(structure {structure!r})")
     sides = card.get("structure_sides")
     if sides is not None and not per_size.sizes_ok(sides):
         raise ModelFormatError(f"{source}: model card field 'structure_sides' must be a list of "

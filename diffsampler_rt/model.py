@@ -184,7 +184,9 @@ class Model:
             :mod:`diffsampler_rt.structure`), ``"structure": "n_rooks"`` (ldbn: both 1-d
             projections stratified at power-of-two k >= 16, also imposed on the clean-set
             prediction of the last ``"structure_guidance"`` solver steps so that the net
-            arranges its sets around it), ``"structure": "rank1_lattice"`` (lattice
+            arranges its sets around it; with ``"structure_block": 32``, at k >= 64 every
+            aligned block of 32 or more cells of a column or row stratified at its own
+            sub-strip width too, as LDBN's are), ``"structure": "rank1_lattice"`` (lattice
             models: each set replaced by the rank-1 lattice it is closest to, read off its
             power spectrum, under a uniformly random shift, at the grid sides in
             ``"structure_sides"``;
@@ -316,10 +318,11 @@ class Model:
         if weight:  # autoguidance by the card's weaker model
             eps_fn = guided(self.denoise, self.guide().denoise, weight)
         guided_steps = self.card.get("structure_guidance", 0) if imposed else 0
+        block = self.card.get("structure_block")  # n-rooks' smallest stratified block
         if guided_steps:
             def project(x0: np.ndarray) -> np.ndarray:
                 pts = impose_unchecked(decode(x0 / scale, stratified=True), k,
-                                       self.card["structure"])
+                                       self.card["structure"], block=block)
                 return encode_stratified(pts, k) * scale
 
             eps_fn = project_x0(eps_fn, self.alpha_bar, project,
@@ -346,7 +349,7 @@ class Model:
             if spacing is not None and imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             if imposed:  # a lattice's random shift comes after the solver's draws
-                pts = impose_unchecked(pts, k, self.card["structure"], sub)
+                pts = impose_unchecked(pts, k, self.card["structure"], sub, block)
             if relattice:  # n not a square: the thinned set's nearest lattice of n points
                 pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
             elif n < k * k:  # blue noise: the k*k - n most crowded points go; else at random

@@ -15,7 +15,10 @@ noise (LDBN) has it at power-of-two sides >= 16; a small net does not learn it (
 fall in the wrong 1/n strips of their cells: 86-92 % of them move). Inside each column of
 cells the k points take the k sub-columns of width 1/n in the order of their x (rows
 likewise for y), the 1-d optimal assignment; a point already alone in its strip keeps its
-coordinate.
+coordinate. LDBN has more: every aligned block of 2^j cells of a column, 2^j >= 16, puts
+its points into 2^j distinct sub-columns of width 1/(k 2^j) (its offsets are radical
+inverses of 16 consecutive integers per block); ``block`` B imposes that for the blocks of
+B cells and up (a dyadic net is B = 1, plain n-rooks B = k).
 
 These two are for stratified embeddings only and hold at power-of-two grid sides: the model
 card asks for one with ``"structure"``; it is imposed at power-of-two sides k >=
@@ -51,18 +54,21 @@ def applies(card: dict, k: int) -> bool:
             and k in card.get("structure_sides", [k]))
 
 
-def _dyadic_slots(frac: np.ndarray) -> np.ndarray:
+def _dyadic_slots(frac: np.ndarray, block: int = 1) -> np.ndarray:
     """Sub-strip index (0 .. k-1) per point, from its offset ``frac`` in [0, 1) inside its
     cell, along the last axis (the k cells of one column), such that every aligned block of
-    2^j cells holds 2^j distinct j-bit prefixes.
+    2^j >= ``block`` cells holds 2^j distinct j-bit prefixes.
 
-    Built one bit at a time from the smallest blocks up: the two points of a block that
-    share a prefix so far (one from each half) are told apart by their offsets, the smaller
-    getting bit 0. A column that already satisfies the condition keeps its sub-strips.
+    The blocks of ``block`` cells take their prefixes in the order of their offsets (the
+    sorted matching); then one bit at a time for the larger blocks: the two points of a
+    block that share a prefix so far (one from each half) are told apart by their offsets,
+    the smaller getting bit 0. A column that already satisfies the condition keeps its
+    sub-strips.
     """
     k = frac.shape[-1]
-    prefix = np.zeros(frac.shape, dtype=np.int64)
-    size = 2
+    size = min(block, k)
+    prefix = _rook_slots(frac.reshape(frac.shape[:-1] + (k // size, size))).reshape(frac.shape)
+    size *= 2
     while size <= k:
         shape = frac.shape[:-1] + (k // size, 2, size // 2)
         f, p = frac.reshape(shape), prefix.reshape(shape)
@@ -83,19 +89,25 @@ def _rook_slots(frac: np.ndarray) -> np.ndarray:
     return np.argsort(np.argsort(frac, axis=-1, kind="stable"), axis=-1)
 
 
-#: per structure: sub-strip choice, and whether a moved point keeps its offset inside the
-#: sub-strip (Owen-scrambled nets are uniform inside their strips, so the star discrepancy
-#: then matches the reference's) or goes to the nearest point of its new sub-strip (the
-#: least move: for n-rooks most of the network's points change strip)
-_STRUCTURES = {"dyadic_net": (_dyadic_slots, True), "n_rooks": (_rook_slots, False)}
+#: per structure: whether a moved point keeps its offset inside the sub-strip
+#: (Owen-scrambled nets are uniform inside their strips, so the star discrepancy then
+#: matches the reference's) or goes to the nearest point of its new sub-strip (the least
+#: move: for n-rooks most of the network's points change strip)
+_KEEPS_OFFSET = {"dyadic_net": True, "n_rooks": False}
 
 
-def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net") -> np.ndarray:
-    """One coordinate, shape (sets, cell index along it, k cells across) -> imposed."""
-    slots, keep_offset = _STRUCTURES[name]
+def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net",
+                block: int | None = None) -> np.ndarray:
+    """One coordinate, shape (sets, cell index along it, k cells across) -> imposed;
+    ``block``: the smallest stratified block of cells (default: 1 for a net, k for
+    n-rooks)."""
+    keep_offset = _KEEPS_OFFSET[name]
     cell = np.arange(k)[None, :, None]
     frac = coord * k - cell  # offset inside the cell, [0, 1)
-    strip = cell * k + slots(frac)
+    if block is None:
+        block = 1 if name == "dyadic_net" else k
+    slots = _rook_slots(frac) if block >= k else _dyadic_slots(frac, block)
+    strip = cell * k + slots
     lo, hi = strip_bounds(k * k)
     if keep_offset:
         fine = frac * k - np.floor(frac * k)
@@ -129,12 +141,17 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
     return _impose(_checked(points, k), k)
 
 
-def impose_n_rooks(points: np.ndarray, k: int) -> np.ndarray:
+def impose_n_rooks(points: np.ndarray, k: int, *, block: int | None = None) -> np.ndarray:
     """Make each set (..., k*k, 2) from a stratified k x k grid 1-d stratified in x and y.
 
     Every 1/n strip of either axis then holds exactly one point, and each point stays in its
     grid cell (a multi-jittered set). Any grid side k >= 1. Points are in row-major cell
     order, as for :func:`impose_dyadic_net`.
+
+    ``block`` (a power of two, with k a power of two): also every aligned block of B cells
+    of a column (row), for B = ``block``, 2 ``block``, ... up to k, puts its B points in B
+    distinct sub-columns of width 1/(k B), as LDBN's sets do from B = 16 on. At k <=
+    ``block`` this is plain n-rooks.
 
     Examples
     --------
@@ -149,7 +166,14 @@ def impose_n_rooks(points: np.ndarray, k: int) -> np.ndarray:
     """
     if k < 1:
         raise ValueError(f"the grid side must be >= 1, got k={k}")
-    return _impose(_checked(points, k), k, "n_rooks")
+    if block is not None:
+        if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1 \
+                or block & (block - 1):
+            raise ValueError(f"block must be a power of two >= 1, got {block!r}")
+        if block < k and k & (k - 1):
+            raise ValueError(f"a block of {block} cells needs a power-of-two grid side, "
+                             f"got k={k}")
+    return _impose(_checked(points, k), k, "n_rooks", block=block)
 
 
 def _checked(points: np.ndarray, k: int) -> np.ndarray:
@@ -167,15 +191,17 @@ def _checked(points: np.ndarray, k: int) -> np.ndarray:
 
 
 def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net",
-            rngs: list[np.random.Generator] | None = None) -> np.ndarray:
+            rngs: list[np.random.Generator] | None = None,
+            block: int | None = None) -> np.ndarray:
     """The structure ``name`` without the checks, for the runtime's generation loop
     (a stratified decode already puts one point per cell in row-major order); ``rngs``, one
-    per set, draw the lattices' random shifts."""
+    per set, draw the lattices' random shifts; ``block``: n-rooks' smallest stratified block
+    (the card's ``"structure_block"``)."""
     if name == "rank1_lattice":
         return nearest_rank1_lattice(pts, rngs)
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns
-    out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k, name).swapaxes(1, 2)
-    out[..., 1] = _restratify(grid[..., 1], k, name)
+    out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k, name, block).swapaxes(1, 2)
+    out[..., 1] = _restratify(grid[..., 1], k, name, block)
     return out.reshape(pts.shape)

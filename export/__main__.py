@@ -3,6 +3,7 @@
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...] [--structure-temperature T|none]
+[--structure-block B|none]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
 [--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
@@ -56,6 +57,10 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--structure-temperature", metavar="T|none",
                    help="where the structure is imposed, scale the solver's starting noise by "
                         "T (its coarse modes keep the --coarse-noise gain; none: remove)")
+    p.add_argument("--structure-block", metavar="B|none",
+                   help="n_rooks: also stratify every aligned block of B, 2B, ... cells of a "
+                        "column (row) at its own sub-strip width, as LDBN does from B = 16 "
+                        "(B a power of two; none: remove)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -121,6 +126,9 @@ def set_defaults_main(argv: list[str]) -> int:
     temperature = _number_or_none(args.structure_temperature, "--structure-temperature")
     if temperature is False:
         return 2
+    block = _number_or_none(args.structure_block, "--structure-block", int, "an integer")
+    if block is False:
+        return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
@@ -155,6 +163,7 @@ def set_defaults_main(argv: list[str]) -> int:
                             structure_min_side=args.structure_min_side,
                             structure_guidance=args.structure_guidance,
                             structure_sides=sides, structure_temperature=temperature,
+                            structure_block=block,
                             sliced_ot=sliced,
                             min_spacing=spacing, coarse_noise=coarse, even_out=even,
                             restore_cut=restore, guide=guide)
@@ -207,15 +216,16 @@ def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float)
     return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
 
 
-def _number_or_none(value: str | None, flag: str) -> float | str | None | bool:
-    """A flag's number, ``"none"`` or None (not given) as given, or False after saying on
-    stderr (for exit status 2) that ``flag`` takes a number or none."""
+def _number_or_none(value: str | None, flag: str, kind=float,
+                    what: str = "a number") -> float | int | str | None | bool:
+    """A flag's number (``kind`` of the text), ``"none"`` or None (not given) as given, or
+    False after saying on stderr (for exit status 2) that ``flag`` takes ``what`` or none."""
     if value is None or value == "none":
         return value
     try:
-        return float(value)
+        return kind(value)
     except ValueError:
-        print(f"error: {flag} must be a number or none, got {value!r}", file=sys.stderr)
+        print(f"error: {flag} must be {what} or none, got {value!r}", file=sys.stderr)
         return False
 
 
@@ -231,6 +241,8 @@ def structure_text(card: dict) -> str:
         notes.append(f"guiding {card['structure_guidance']} steps")
     if "structure_temperature" in card:
         notes.append(f"starting noise at temperature {card['structure_temperature']:g}")
+    if "structure_block" in card:
+        notes.append(f"blocks of {card['structure_block']} cells and up stratified")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -47,6 +47,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
                  structure_sides: list[int] | None = None,
                  structure_temperature: float | str | None = None,
+                 structure_block: int | str | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
@@ -54,11 +55,11 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  restore_cut: float | str | None = None,
                  guide: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
-    ``structure_min_side``, ``structure_guidance``, ``structure_sides`` and
-    ``structure_temperature``) / ``sliced_ot`` /
+    ``structure_min_side``, ``structure_guidance``, ``structure_sides``,
+    ``structure_temperature`` and ``structure_block``) / ``sliced_ot`` /
     ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
-    card in ``path`` (``"none"`` removes a structure with its four settings, a temperature, a
-    sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
+    card in ``path`` (``"none"`` removes a structure with its five settings, a temperature, a
+    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
     runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
     model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
@@ -87,10 +88,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card["structure_guidance"] = structure_guidance
         if structure_sides is not None:
             card["structure_sides"] = structure_sides
-        if structure_temperature == "none":
-            card.pop("structure_temperature", None)
-        elif structure_temperature is not None:
-            card["structure_temperature"] = structure_temperature
+        _put(card, "structure_temperature", structure_temperature)
+        _put(card, "structure_block", structure_block)
         if sliced_ot == "none":
             card.pop("sliced_ot", None)
         elif sliced_ot is not None:
@@ -98,28 +97,24 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             kept = {key: value for key, value in card.get("sliced_ot", {}).items()
                     if key in ("directions", "step")}
             card["sliced_ot"] = {"directions": 64, **kept, **sliced_ot}
-        if coarse_noise == "none":
-            card.pop("coarse_noise", None)
-        elif coarse_noise is not None:
-            card["coarse_noise"] = coarse_noise
-        if even_out == "none":
-            card.pop("even_out", None)
-        elif even_out is not None:
-            card["even_out"] = even_out
-        if restore_cut == "none":
-            card.pop("restore_cut", None)
-        elif restore_cut is not None:
-            card["restore_cut"] = restore_cut
+        _put(card, "coarse_noise", coarse_noise)
+        _put(card, "even_out", even_out)
+        _put(card, "restore_cut", restore_cut)
         if guide == "none":
             card.pop("guide", None)
         elif guide is not None:
             card["guide"] = _with_digest(guide, Path(path))
-        if min_spacing == "none":
-            card.pop("min_spacing", None)
-        elif min_spacing is not None:
-            card["min_spacing"] = min_spacing
+        _put(card, "min_spacing", min_spacing)
 
     return edit_card(path, edit)
+
+
+def _put(card: dict, key: str, value) -> None:
+    """Set ``card[key]``; ``"none"`` removes it, ``None`` leaves it as it is."""
+    if isinstance(value, str) and value == "none":
+        card.pop(key, None)
+    elif value is not None:
+        card[key] = value
 
 
 def _with_digest(guide: dict, path: Path) -> dict:

@@ -111,6 +111,107 @@ def test_n_rooks_leaves_ldbn_sets_unchanged():
         impose_n_rooks(ordered[:, ::-1], k)
 
 
+def _block_strata(pts: np.ndarray, k: int, block: int) -> bool:
+    """Whether every aligned block of B = block, 2 block, ... k cells of each column (row)
+    puts its B points in B distinct sub-columns (sub-rows) of width 1/(k B)."""
+    grid = pts.reshape(-1, k, k, 2)
+    for axis, coord in ((1, grid[..., 0]), (2, grid[..., 1])):  # x down columns, y along rows
+        along = np.moveaxis(coord, axis, -1)  # (set, other index, k cells of the run)
+        b = block
+        while b <= k:
+            sub = np.floor(along * k * b).astype(int) % b  # sub-strip of width 1/(k b) in cell
+            runs = np.sort(sub.reshape(*sub.shape[:-1], k // b, b), axis=-1)
+            if not np.array_equal(runs, np.broadcast_to(np.arange(b), runs.shape)):
+                return False
+            b *= 2
+    return True
+
+
+@pytest.mark.parametrize("k, block", [(32, 16), (64, 32), (64, 4), (16, 16)])
+def test_n_rooks_blocks_stratify_every_block_from_b_up(k, block):
+    pts = jittered(k, 3)
+    out = impose_n_rooks(pts, k, block=block)
+    assert stratified_projections(out).all() and _block_strata(out, k, block)
+    assert not _block_strata(impose_n_rooks(pts, k), k, block) or block >= k
+    np.testing.assert_array_equal(np.floor(out * k), np.floor(pts * k))  # cells kept
+    np.testing.assert_array_equal(impose_n_rooks(out, k, block=block), out)  # idempotent
+    if block >= k:  # plain n-rooks
+        np.testing.assert_array_equal(out, impose_n_rooks(pts, k))
+
+
+@pytest.mark.parametrize("k", [32, 64])
+def test_ldbn_sets_have_the_blocks_from_16_and_keep_them(k):
+    """LDBN's offsets are radical inverses of 16 consecutive integers per aligned block of 16
+    cells: its sets are stratified in blocks of 16 and up (not 8) and impose_n_rooks with
+    block 16 leaves them as they are."""
+    from trainer.samplers import sample
+    ref = sample("ldbn", k * k, count=3, seed=5)
+    cell = (np.floor(ref[..., 1] * k) * k + np.floor(ref[..., 0] * k)).astype(int)
+    ordered = np.take_along_axis(ref, np.argsort(cell, axis=1)[..., None], axis=1)
+    assert _block_strata(ordered, k, 16) and not _block_strata(ordered, k, 8)
+    np.testing.assert_array_equal(impose_n_rooks(ordered, k, block=16), ordered)
+
+
+@pytest.mark.parametrize("k, block, message", [
+    (32, 3, "power of two >= 1, got 3"), (32, 0, "got 0"), (32, True, "got True"),
+    (24, 8, "power-of-two grid side, got k=24"),
+])
+def test_n_rooks_block_is_validated(k, block, message):
+    with pytest.raises(ValueError, match="block") as err:
+        impose_n_rooks(jittered(k, 1), k, block=block)
+    assert message in str(err.value)
+    impose_n_rooks(jittered(24, 1), 24, block=32)  # a block of k or more: plain n-rooks
+
+
+@pytest.mark.parametrize("card_change, message", [
+    ({"structure_block": 32, "structure": "dyadic_net", "structure_guidance": None},
+     "next to the structure 'n_rooks'"),
+    ({"structure_block": 24}, "got 24"),
+    ({"structure_block": 32.0}, "got 32.0"),
+    ({"structure_block": 32, "structure": None, "structure_min_side": None,
+      "structure_guidance": None, "structure_temperature": None}, "needs a structure"),
+])
+def test_card_structure_block_is_validated(card_change, message):
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    card = {**diffsampler_rt.load("ldbn_fast").card, **card_change}
+    card = {k: v for k, v in card.items() if v is not None}
+    with pytest.raises(ModelFormatError, match="structure_block") as err:
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    assert message in str(err.value)
+
+
+def test_card_structure_block_applies_in_the_solver_and_on_the_sets(tiny_onnx, tmp_path,
+                                                                    capsys):
+    """set-defaults --structure-block writes it; at k = 32 the runtime's sets then have the
+    blocks of 16 and the guided steps project onto them too; --structure none removes it."""
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    args = ["set-defaults", str(path), "--structure", "n_rooks", "--structure-min-side", "16"]
+    assert export_main(args) == 0
+    plain = diffsampler_rt.Model(path).generate(1024, 2, seed=4)
+    assert not _block_strata(plain, 32, 16)
+    capsys.readouterr()
+    assert export_main(["set-defaults", str(path), "--structure-block", "16"]) == 0
+    assert "blocks of 16 cells and up stratified" in capsys.readouterr().out
+    m = diffsampler_rt.Model(path)
+    out = m.generate(1024, 2, seed=4)
+    assert _block_strata(out, 32, 16)
+    np.testing.assert_array_equal(m.generate(256, 2, seed=4),  # k = 16: plain n-rooks
+                                  diffsampler_rt.Model(path).generate(256, 2, seed=4))
+    assert export_main(["set-defaults", str(path), "--structure-guidance", "2"]) == 0
+    guided = diffsampler_rt.Model(path).generate(1024, 2, seed=4)
+    assert _block_strata(guided, 32, 16) and not np.array_equal(guided, out)
+    assert export_main(["set-defaults", str(path), "--structure-block", "x"]) == 2
+    assert "--structure-block must be an integer or none" in capsys.readouterr().err
+    assert export_main(["set-defaults", str(path), "--structure-block", "12"]) == 2
+    assert export_main(["set-defaults", str(path), "--structure-block", "none"]) == 0
+    assert "structure_block" not in diffsampler_rt.Model(path).card
+    assert export_main(["set-defaults", str(path), "--structure-block", "16"]) == 0
+    assert export_main(["set-defaults", str(path), "--structure", "none"]) == 0
+    assert "structure_block" not in diffsampler_rt.Model(path).card
+
+
 def test_n_rooks_card_min_side_and_guidance(tiny_onnx, tmp_path):
     from export.defaults import set_defaults
     path = tmp_path / "m.onnx"
