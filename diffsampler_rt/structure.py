@@ -18,7 +18,7 @@ likewise for y), the 1-d optimal assignment; a point already alone in its strip 
 coordinate. LDBN has more: every aligned block of 2^j cells of a column, 2^j >= 16, puts
 its points into 2^j distinct sub-columns of width 1/(k 2^j) (its offsets are radical
 inverses of 16 consecutive integers per block); ``block`` B imposes that for the blocks of
-B cells and up (a dyadic net is B = 1, plain n-rooks B = k).
+B cells and up (B = 1 chooses a dyadic net's sub-strips, B = k is plain n-rooks).
 
 These two are for stratified embeddings only and hold at power-of-two grid sides: the model
 card asks for one with ``"structure"``; it is imposed at power-of-two sides k >=
