@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -216,8 +217,8 @@ def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float)
     return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
 
 
-def _number_or_none(value: str | None, flag: str, kind=float,
-                    what: str = "a number") -> float | int | str | None | bool:
+def _number_or_none(value: str | None, flag: str, kind: Callable[[str], float] = float,
+                    what: str = "a number") -> float | str | None | bool:
     """A flag's number (``kind`` of the text), ``"none"`` or None (not given) as given, or
     False after saying on stderr (for exit status 2) that ``flag`` takes ``what`` or none."""
     if value is None or value == "none":
