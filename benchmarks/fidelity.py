@@ -768,10 +768,13 @@ def _structure_text(c: dict) -> str:
                 f"of its power{where} (diffsampler_rt.lattice)")
     what = {"dyadic_net": "the (0, m, 2)-net structure",
             "n_rooks": "1-d stratified projections (n-rooks)"}.get(c.get("structure"))
-    if what is not None and "structure_block" in c:
+    block = c.get("structure_block")
+    if what is not None and block is not None:
+        where = (", ".join(f"{b} at k = {k}" for k, b in zip(block["sides"], block["block"]))
+                 if isinstance(block, dict) else str(block))
         what = ("1-d stratified projections (n-rooks, and as in LDBN every aligned block of "
-                f"{c['structure_block']} or more cells of a column or row stratified at its "
-                "own sub-strip width)")
+                f"B or more cells of a column or row stratified at its own sub-strip width, "
+                f"B = {where})")
     if what is None:
         return ""
     sides = f" >= {c['structure_min_side']}" if c.get("structure_min_side", 1) > 1 else ""

@@ -19,7 +19,7 @@ from .low_frequencies import settings_problem as even_problem
 from .schedule import betas
 from .sliced_ot import settings_problem as sliced_problem
 from .solvers import SOLVERS
-from .structure import ANY_SIDE, STRUCTURES
+from .structure import ANY_SIDE, STRUCTURES, block_problem
 
 FORMAT_KEY = "diffsampler.format"
 CARD_KEY = "diffsampler.card"
@@ -110,11 +110,11 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
             raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
                                    f">= {low}, got {value!r}")
     block = card.get("structure_block")
-    if block is not None and (structure != "n_rooks" or isinstance(block, bool)
-                              or not isinstance(block, int) or block < 1 or block & (block - 1)):
-        raise ModelFormatError(f"{source}: model card field 'structure_block' must be a power "
-                               f"of two >= 1 next to the structure 'n_rooks', got {block!r} "
-                               f"(structure {structure!r})")
+    if block is not None and structure is not None and structure != "n_rooks":
+        raise ModelFormatError(f"{source}: model card field 'structure_block' needs the "
+                               f"structure 'n_rooks', the card says {structure!r}")
+    if block is not None and (problem := block_problem(block)):
+        raise ModelFormatError(f"{source}: model card field {problem}")
     sides = card.get("structure_sides")
     if sides is not None and not per_size.sizes_ok(sides):
         raise ModelFormatError(f"{source}: model card field 'structure_sides' must be a list of "

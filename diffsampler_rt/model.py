@@ -28,7 +28,7 @@ from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
 from .structure import _impose as impose_unchecked
-from .structure import applies
+from .structure import applies, block_at
 
 MODELS_DIR = Path(__file__).parent / "models"
 #: points evaluated per onnxruntime call when generating many sets
@@ -184,9 +184,9 @@ class Model:
             :mod:`diffsampler_rt.structure`), ``"structure": "n_rooks"`` (ldbn: both 1-d
             projections stratified at power-of-two k >= 16, also imposed on the clean-set
             prediction of the last ``"structure_guidance"`` solver steps so that the net
-            arranges its sets around it; with ``"structure_block": 32``, at k >= 64 every
-            aligned block of 32 or more cells of a column or row stratified at its own
-            sub-strip width too, as LDBN's are), ``"structure": "rank1_lattice"`` (lattice
+            arranges its sets around it; with ``"structure_block"``, at k = 64 and 128 the
+            aligned halves of every column and row, and their halves down to 32 cells,
+            stratified at their own sub-strip widths too, as LDBN's are), ``"structure": "rank1_lattice"`` (lattice
             models: each set replaced by the rank-1 lattice it is closest to, read off its
             power spectrum, under a uniformly random shift, at the grid sides in
             ``"structure_sides"``;
@@ -318,7 +318,7 @@ class Model:
         if weight:  # autoguidance by the card's weaker model
             eps_fn = guided(self.denoise, self.guide().denoise, weight)
         guided_steps = self.card.get("structure_guidance", 0) if imposed else 0
-        block = self.card.get("structure_block")  # n-rooks' smallest stratified block
+        block = block_at(self.card, k)  # n-rooks' smallest stratified block at this side
         if guided_steps:
             def project(x0: np.ndarray) -> np.ndarray:
                 pts = impose_unchecked(decode(x0 / scale, stratified=True), k,

@@ -54,6 +54,34 @@ def applies(card: dict, k: int) -> bool:
             and k in card.get("structure_sides", [k]))
 
 
+def block_at(card: dict, k: int) -> int | None:
+    """The card's ``"structure_block"`` at grid side k: one B for every side, or per side
+    from ``{"sides": [K, ...], "block": [B, ...]}`` (None, plain n-rooks, at a side not
+    listed)."""
+    block = card.get("structure_block")
+    if isinstance(block, dict):
+        return dict(zip(block["sides"], block["block"])).get(k)
+    return block
+
+
+def block_problem(block) -> str | None:
+    """Why a card's ``"structure_block"`` value is invalid, or None."""
+    def power(b) -> bool:
+        return not isinstance(b, bool) and isinstance(b, int) and b >= 1 and b & (b - 1) == 0
+    if isinstance(block, dict):
+        sides, blocks = block.get("sides"), block.get("block")
+        if (set(block) == {"sides", "block"} and isinstance(sides, list)
+                and isinstance(blocks, list) and len(sides) == len(blocks) > 0
+                and all(power(v) for v in sides + blocks)
+                and all(a < b for a, b in zip(sides, sides[1:]))):
+            return None
+    elif power(block):
+        return None
+    return ("'structure_block' must be a power of two >= 1, or {\"sides\": [K, ...], "
+            "\"block\": [B, ...]} with increasing power-of-two sides and power-of-two blocks, "
+            f"got {block!r}")
+
+
 def _dyadic_slots(frac: np.ndarray, block: int = 1) -> np.ndarray:
     """Sub-strip index (0 .. k-1) per point, from its offset ``frac`` in [0, 1) inside its
     cell, along the last axis (the k cells of one column), such that every aligned block of

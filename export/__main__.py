@@ -3,7 +3,7 @@
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...] [--structure-temperature T|none]
-[--structure-block B|none]
+[--structure-block B|K:B,...|none]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
 [--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
@@ -61,7 +61,8 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--structure-block", metavar="B|none",
                    help="n_rooks: also stratify every aligned block of B, 2B, ... cells of a "
                         "column (row) at its own sub-strip width, as LDBN does from B = 16 "
-                        "(B a power of two; none: remove)")
+                        "(B a power of two; K:B pairs give B per grid side K, plain n-rooks "
+                        "at the sides not listed; none: remove)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -127,7 +128,7 @@ def set_defaults_main(argv: list[str]) -> int:
     temperature = _number_or_none(args.structure_temperature, "--structure-temperature")
     if temperature is False:
         return 2
-    block = _number_or_none(args.structure_block, "--structure-block", int, "an integer")
+    block = _block_arg(args.structure_block)
     if block is False:
         return 2
     spacing = args.min_spacing
@@ -230,6 +231,24 @@ def _number_or_none(value: str | None, flag: str, kind: Callable[[str], float] =
         return False
 
 
+def _block_arg(value: str | None) -> int | dict | str | None | bool:
+    """--structure-block's B (every side) or K:B pairs (per grid side: {"sides", "block"}),
+    "none" or None as given, or False after saying on stderr what it takes."""
+    if value is None or value == "none":
+        return value
+    try:
+        if ":" not in value:
+            return int(value)
+        pairs = [tuple(int(v) for v in pair.split(":")) for pair in value.split(",")]
+        if any(len(p) != 2 for p in pairs):
+            raise ValueError(value)
+        return {"sides": [p[0] for p in pairs], "block": [p[1] for p in pairs]}
+    except ValueError:
+        print(f"error: --structure-block must be an integer, K:B pairs separated by commas, "
+              f"or none, got {value!r}", file=sys.stderr)
+        return False
+
+
 def structure_text(card: dict) -> str:
     """"n_rooks (k >= 16, guiding 5 steps)", "rank1_lattice (k in 8, 16, 32)", "none"
     (and the starting noise's temperature where the structure has one)."""
@@ -242,8 +261,13 @@ def structure_text(card: dict) -> str:
         notes.append(f"guiding {card['structure_guidance']} steps")
     if "structure_temperature" in card:
         notes.append(f"starting noise at temperature {card['structure_temperature']:g}")
-    if "structure_block" in card:
-        notes.append(f"blocks of {card['structure_block']} cells and up stratified")
+    block = card.get("structure_block")
+    if isinstance(block, dict):
+        notes.append("blocks of " + ", ".join(f"{b} cells and up at k = {k}" for k, b in
+                                              zip(block["sides"], block["block"]))
+                     + " stratified")
+    elif block is not None:
+        notes.append(f"blocks of {block} cells and up stratified")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -165,9 +165,12 @@ def test_n_rooks_block_is_validated(k, block, message):
 
 @pytest.mark.parametrize("card_change, message", [
     ({"structure_block": 32, "structure": "dyadic_net", "structure_guidance": None},
-     "next to the structure 'n_rooks'"),
+     "needs the structure 'n_rooks'"),
     ({"structure_block": 24}, "got 24"),
     ({"structure_block": 32.0}, "got 32.0"),
+    ({"structure_block": {"sides": [128, 64], "block": [64, 32]}}, "increasing"),
+    ({"structure_block": {"sides": [64], "block": [32, 64]}}, "got {"),
+    ({"structure_block": {"sides": [64], "blocks": [32]}}, "got {"),
     ({"structure_block": 32, "structure": None, "structure_min_side": None,
       "structure_guidance": None, "structure_temperature": None}, "needs a structure"),
 ])
@@ -203,7 +206,17 @@ def test_card_structure_block_applies_in_the_solver_and_on_the_sets(tiny_onnx, t
     guided = diffsampler_rt.Model(path).generate(1024, 2, seed=4)
     assert _block_strata(guided, 32, 16) and not np.array_equal(guided, out)
     assert export_main(["set-defaults", str(path), "--structure-block", "x"]) == 2
-    assert "--structure-block must be an integer or none" in capsys.readouterr().err
+    assert "--structure-block must be an integer, K:B pairs" in capsys.readouterr().err
+    # per grid side: blocks of 16 at k = 32 only, plain n-rooks at the sides not listed
+    assert export_main(["set-defaults", str(path), "--structure-block", "32:16,64:32"]) == 0
+    assert "blocks of 16 cells and up at k = 32, 32 cells and up at k = 64" in \
+        capsys.readouterr().out
+    assert diffsampler_rt.Model(path).card["structure_block"] == {"sides": [32, 64],
+                                                                   "block": [16, 32]}
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(1024, 2, seed=4), guided)
+    assert export_main(["set-defaults", str(path), "--structure-block", "64:16"]) == 0
+    assert not _block_strata(diffsampler_rt.Model(path).generate(1024, 2, seed=4), 32, 16)
+    assert export_main(["set-defaults", str(path), "--structure-block", "64:16:2"]) == 2
     assert export_main(["set-defaults", str(path), "--structure-block", "12"]) == 2
     assert export_main(["set-defaults", str(path), "--structure-block", "none"]) == 0
     assert "structure_block" not in diffsampler_rt.Model(path).card
