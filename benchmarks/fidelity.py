@@ -54,6 +54,7 @@ from diffsampler_rt.guidance import describe as describe_guide  # noqa: E402
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
+from diffsampler_rt.structure import describe_block  # noqa: E402
 from trainer.samplers import SLOW  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.density import OLD_FLOOR  # noqa: E402
@@ -768,13 +769,10 @@ def _structure_text(c: dict) -> str:
                 f"of its power{where} (diffsampler_rt.lattice)")
     what = {"dyadic_net": "the (0, m, 2)-net structure",
             "n_rooks": "1-d stratified projections (n-rooks)"}.get(c.get("structure"))
-    block = c.get("structure_block")
-    if what is not None and block is not None:
-        where = (", ".join(f"{b} at k = {k}" for k, b in zip(block["sides"], block["block"]))
-                 if isinstance(block, dict) else str(block))
-        what = ("1-d stratified projections (n-rooks, and as in LDBN every aligned block of "
-                f"B or more cells of a column or row stratified at its own sub-strip width, "
-                f"B = {where})")
+    if what is not None and "structure_block" in c:
+        what = ("1-d stratified projections (n-rooks, and as in LDBN the aligned "
+                f"{describe_block(c['structure_block'])} of each column and row stratified "
+                "at their own sub-strip widths)")
     if what is None:
         return ""
     sides = f" >= {c['structure_min_side']}" if c.get("structure_min_side", 1) > 1 else ""

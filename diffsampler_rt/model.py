@@ -186,9 +186,10 @@ class Model:
             prediction of the last ``"structure_guidance"`` solver steps so that the net
             arranges its sets around it; with ``"structure_block"``, at k = 64 and 128 the
             aligned halves of every column and row, and their halves down to 32 cells,
-            stratified at their own sub-strip widths too, as LDBN's are), ``"structure": "rank1_lattice"`` (lattice
-            models: each set replaced by the rank-1 lattice it is closest to, read off its
-            power spectrum, under a uniformly random shift, at the grid sides in
+            stratified at their own sub-strip widths too, as LDBN's are),
+            ``"structure": "rank1_lattice"`` (lattice models: each set replaced by the
+            rank-1 lattice it is closest to, read off its power spectrum, under a uniformly
+            random shift, at the grid sides in
             ``"structure_sides"``;
             :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its

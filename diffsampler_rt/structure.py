@@ -64,6 +64,15 @@ def block_at(card: dict, k: int) -> int | None:
     return block
 
 
+def describe_block(block: int | dict) -> str:
+    """"blocks of 32 cells and up", or per side "blocks of 32 cells and up at k = 64, 64
+    cells and up at k = 128"."""
+    if isinstance(block, dict):
+        return "blocks of " + ", ".join(f"{b} cells and up at k = {k}"
+                                        for k, b in zip(block["sides"], block["block"]))
+    return f"blocks of {block} cells and up"
+
+
 def block_problem(block) -> str | None:
     """Why a card's ``"structure_block"`` value is invalid, or None."""
     def power(b) -> bool:
@@ -134,8 +143,7 @@ def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net",
     frac = coord * k - cell  # offset inside the cell, [0, 1)
     if block is None:
         block = 1 if name == "dyadic_net" else k
-    slots = _rook_slots(frac) if block >= k else _dyadic_slots(frac, block)
-    strip = cell * k + slots
+    strip = cell * k + _dyadic_slots(frac, block)
     lo, hi = strip_bounds(k * k)
     if keep_offset:
         fine = frac * k - np.floor(frac * k)

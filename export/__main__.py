@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 
@@ -58,7 +57,7 @@ def set_defaults_main(argv: list[str]) -> int:
     p.add_argument("--structure-temperature", metavar="T|none",
                    help="where the structure is imposed, scale the solver's starting noise by "
                         "T (its coarse modes keep the --coarse-noise gain; none: remove)")
-    p.add_argument("--structure-block", metavar="B|none",
+    p.add_argument("--structure-block", metavar="B|K:B,K:B,...|none",
                    help="n_rooks: also stratify every aligned block of B, 2B, ... cells of a "
                         "column (row) at its own sub-strip width, as LDBN does from B = 16 "
                         "(B a power of two; K:B pairs give B per grid side K, plain n-rooks "
@@ -218,16 +217,15 @@ def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float)
     return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
 
 
-def _number_or_none(value: str | None, flag: str, kind: Callable[[str], float] = float,
-                    what: str = "a number") -> float | str | None | bool:
-    """A flag's number (``kind`` of the text), ``"none"`` or None (not given) as given, or
-    False after saying on stderr (for exit status 2) that ``flag`` takes ``what`` or none."""
+def _number_or_none(value: str | None, flag: str) -> float | str | None | bool:
+    """A flag's number, ``"none"`` or None (not given) as given, or False after saying on
+    stderr (for exit status 2) that ``flag`` takes a number or none."""
     if value is None or value == "none":
         return value
     try:
-        return kind(value)
+        return float(value)
     except ValueError:
-        print(f"error: {flag} must be {what} or none, got {value!r}", file=sys.stderr)
+        print(f"error: {flag} must be a number or none, got {value!r}", file=sys.stderr)
         return False
 
 
@@ -261,13 +259,9 @@ def structure_text(card: dict) -> str:
         notes.append(f"guiding {card['structure_guidance']} steps")
     if "structure_temperature" in card:
         notes.append(f"starting noise at temperature {card['structure_temperature']:g}")
-    block = card.get("structure_block")
-    if isinstance(block, dict):
-        notes.append("blocks of " + ", ".join(f"{b} cells and up at k = {k}" for k, b in
-                                              zip(block["sides"], block["block"]))
-                     + " stratified")
-    elif block is not None:
-        notes.append(f"blocks of {block} cells and up stratified")
+    if "structure_block" in card:
+        from diffsampler_rt.structure import describe_block
+        notes.append(describe_block(card["structure_block"]) + " stratified")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -47,7 +47,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  structure_min_side: int | None = None, structure_guidance: int | None = None,
                  structure_sides: list[int] | None = None,
                  structure_temperature: float | str | None = None,
-                 structure_block: int | str | None = None,
+                 structure_block: int | dict | str | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
@@ -59,8 +59,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
     ``structure_temperature`` and ``structure_block``) / ``sliced_ot`` /
     ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
     card in ``path`` (``"none"`` removes a structure with its five settings, a temperature, a
-    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which then is the
-    runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
+    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which
+    then is the runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
     model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
     ``"step"`` keeps the card's (else 64 and 1)."""
