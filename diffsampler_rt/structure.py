@@ -73,10 +73,15 @@ def describe_block(block: int | dict) -> str:
     return f"blocks of {block} cells and up"
 
 
+def _power_of_two(b) -> bool:
+    """Whether ``b`` is an integer (not a bool) 1, 2, 4, ..."""
+    return (not isinstance(b, bool) and isinstance(b, (int, np.integer)) and b >= 1
+            and b & (b - 1) == 0)
+
+
 def block_problem(block) -> str | None:
     """Why a card's ``"structure_block"`` value is invalid, or None."""
-    def power(b) -> bool:
-        return not isinstance(b, bool) and isinstance(b, int) and b >= 1 and b & (b - 1) == 0
+    power = _power_of_two
     if isinstance(block, dict):
         sides, blocks = block.get("sides"), block.get("block")
         if (set(block) == {"sides", "block"} and isinstance(sides, list)
@@ -203,8 +208,7 @@ def impose_n_rooks(points: np.ndarray, k: int, *, block: int | None = None) -> n
     if k < 1:
         raise ValueError(f"the grid side must be >= 1, got k={k}")
     if block is not None:
-        if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1 \
-                or block & (block - 1):
+        if not _power_of_two(block):
             raise ValueError(f"block must be a power of two >= 1, got {block!r}")
         if block < k and k & (k - 1):
             raise ValueError(f"a block of {block} cells needs a power-of-two grid side, "

@@ -47,3 +47,18 @@ def tiny_onnx(tmp_path_factory) -> Path:
     export_model(net, model_card(cfg, training_steps=0), path, fp16_weights=True)
     torch.save(net.state_dict(), path.with_suffix(".state"))
     return path
+
+
+def changed_card_error(model: str, change: dict, key: str) -> str:
+    """The message of the ModelFormatError naming ``key`` that parse_card raises on bundled
+    ``model``'s card with ``change`` applied (a None value removes that entry)."""
+    import json
+
+    import diffsampler_rt
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    from diffsampler_rt.errors import ModelFormatError
+    card = {**diffsampler_rt.load(model).card, **change}
+    card = {k: v for k, v in card.items() if v is not None}
+    with pytest.raises(ModelFormatError, match=key) as err:
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    return str(err.value)

@@ -13,6 +13,8 @@ from diffsampler_rt import ModelFormatError, coarse_noise
 from diffsampler_rt.coarse_noise import coarse_filter, gain_at, settings_problem, shape_noise
 from diffsampler_rt.spectrum import radial_spectrum
 
+from .conftest import changed_card_error
+
 
 def test_only_the_coarse_modes_are_scaled():
     x = np.random.default_rng(0).standard_normal((3, 2, 32, 32))
@@ -158,12 +160,7 @@ def test_a_temperature_scales_every_other_mode():
     ({"structure_temperature": True}, "got True"),
 ])
 def test_structure_temperature_is_validated(card_change, message):
-    from diffsampler_rt.card import CARD_KEY, parse_card
-    card = {**diffsampler_rt.load("ldbn_fast").card, **card_change}
-    card = {k: v for k, v in card.items() if v is not None}
-    with pytest.raises(ModelFormatError, match="structure_temperature") as err:
-        parse_card({CARD_KEY: json.dumps(card)}, "m")
-    assert message in str(err.value)
+    assert message in changed_card_error("ldbn_fast", card_change, "structure_temperature")
 
 
 def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, capsys):
