@@ -715,19 +715,20 @@ def _taken_over(r: dict) -> list[str]:
     new = [n for n in r["rows"] if n not in old]
     same = [f"n = {', '.join(map(str, ns))} in an earlier run on {d}"
             for (d, h), ns in sorted(by_run.items()) if h == r["model_sha256"]]
-    other = [f"n = {', '.join(map(str, ns))} on {d} with an earlier file of this model "
-             f"(sha256 {h[:12]}...)" for (d, h), ns in sorted(by_run.items())
-             if h != r["model_sha256"]]
+    other = [f"n = {', '.join(map(str, ns))} on {d} (sha256 {h[:12]}...)"
+             for (d, h), ns in sorted(by_run.items()) if h != r["model_sha256"]]
     parts = [f"n = {', '.join(map(str, new))} on {r['date']} with the current file"] if new else []
     if same:
         parts.append("; ".join(same) + " with the same file")
     if other:
-        parts.append("; ".join(other) + ", whose generated sets the current file reproduces "
-                     f"(the first 4 sets' minimum distances agree to {REPRODUCE_RTOL:.0e})"
-                     .replace("e-0", "e-"))
-    if not new:  # every row kept: the file was checked on r["date"]
-        parts[-1] += f", checked on {r['date']}"
-    return ["", "Measured: " + "; ".join(parts) + " (`--merge`)."]
+        # the clause first: after a list of several earlier files it would read as the last's
+        files = len({h for _, h in by_run} - {r["model_sha256"]})
+        parts.append(("earlier files" if files > 1 else "an earlier file") + " of this model"
+                     + ", whose generated sets the current file reproduces (the first 4 sets' "
+                     f"minimum distances agree to {REPRODUCE_RTOL:.0e}): ".replace("e-0", "e-")
+                     + "; ".join(other))
+    checked = "" if new else f"; every row checked on {r['date']}"  # every row kept
+    return ["", "Measured: " + "; ".join(parts) + f" (`--merge`{checked})."]
 
 
 def _stale_note(r: dict) -> list[str]:

@@ -57,6 +57,15 @@ def resolve(model: str | os.PathLike) -> Path:
                             ".onnx file")
 
 
+def _noise_shaping(coarse: dict | None, size: int, hot: float
+                   ) -> tuple[float, float, float] | None:
+    """(gain of the coarse modes, their cut, temperature of the others) of the starting noise
+    at a grid of ``size`` cells, or None for plain unit noise."""
+    if coarse:
+        return gain_at(coarse, size), cut_at(coarse, size), hot
+    return (hot, 1.0, hot) if hot != 1 else None  # every mode at the temperature
+
+
 class Model:
     """A loaded diffsampler model: an onnxruntime session plus its model card.
 
@@ -194,16 +203,18 @@ class Model:
             :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
-            ``"even_out"`` (GBN, SOT students and, at n = 4096, Poisson-disk models: their
-            sets' density deviations at large scales shrunk, or amplified, by a smooth move;
-            :mod:`diffsampler_rt.low_frequencies`), ``"restore_cut"`` (GBN models 1, sot /
+            ``"even_out"`` (GBN, SOT students, at n = 4096 Poisson-disk models and beyond
+            4096 ldbn_fast: their sets' density deviations at large scales shrunk, or
+            amplified, by a smooth move; :mod:`diffsampler_rt.low_frequencies`),
+            ``"restore_cut"`` (GBN models 1, sot /
             sot_fast 0.4: where n is not a square, the thinned set's density restored from
             the full set's up to that many sqrt(n) instead of the runtime's 0.25) and
             ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
             every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
-            that where a structure is imposed the spacing comes before it, so that the
-            structure holds exactly (ldbn: the n-rooks projection then puts every point
-            back in a strip of its own cell, which keeps most of the spacing).
+            that where a structure is imposed the spacing and the evening come before it,
+            so that the structure holds exactly (ldbn: the n-rooks projection then puts
+            every point back in a strip of its own cell, which keeps most of the spacing
+            and of the evened large scales).
             Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
             of the solver's starting noise, so that the sets vary at large scales as
             much as the sampler's (:mod:`diffsampler_rt.coarse_noise`; where the structure
@@ -286,10 +297,11 @@ class Model:
         coarse = self.card.get("coarse_noise") if structure else None
         # where the structure is imposed, every mode but the coarse ones at a temperature
         hot = self.card.get("structure_temperature", 1.0) if imposed else 1.0
-        shaping = ((gain_at(coarse, k * k), cut_at(coarse, k * k), hot) if coarse
-                   else (hot, 1.0, hot) if hot != 1 else None)
+        shaping = _noise_shaping(coarse, k * k, hot)
         even = self.card.get("even_out") if structure else None
-        evening = (gain_at(even, n), cut_at(even, n)) if even else None
+        # where a structure is imposed the evening comes before it, on the full k x k set
+        evened = k * k if imposed else n
+        evening = (gain_at(even, evened), cut_at(even, evened)) if even else None
         # a thinned set's large scales restored from its full one up to this (a card's own
         # cut is a tuning like the ones above; without them the runtime's default)
         restore = self.card.get("restore_cut", RESTORE_CUT) if structure else RESTORE_CUT
@@ -344,11 +356,13 @@ class Model:
                          toroidal=toroidal)
             if toroidal:  # after the solver's draws, like a lattice's shift
                 pts = wrap(pts + np.stack([g.random(2) for g in sub])[:, None, :])
-            # an imposed structure must hold exactly, so the spacing goes before it (the
-            # structure puts every point back in a strip of its own cell, a small move that
-            # keeps most of the spacing)
+            # an imposed structure must hold exactly, so the spacing and the evening go
+            # before it (the structure puts every point back in a strip of its own cell, a
+            # small move that keeps most of the spacing and the evened large scales)
             if spacing is not None and imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
+            if evening is not None and imposed:
+                pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
             if imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub, block)
             if relattice:  # n not a square: the thinned set's nearest lattice of n points
@@ -359,7 +373,7 @@ class Model:
             if sliced:
                 pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
                              step=self.card["sliced_ot"].get("step", 1.0))
-            if evening is not None:  # (gain, cut) of the card's "even_out"
+            if evening is not None and not imposed:  # (gain, cut) of the card's "even_out"
                 pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
             if spacing is not None and not imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)

@@ -12,6 +12,8 @@ from diffsampler_rt.structure import impose_dyadic_net, impose_n_rooks
 from trainer.stats import empty_elementary_fraction, t_value
 from trainer.stats.structure import stratified_projections
 
+from .conftest import changed_card_error
+
 
 def jittered(k: int, count: int, seed: int = 0) -> np.ndarray:
     """One uniform point per cell, row-major cell order (what a stratified decode gives)."""
@@ -175,12 +177,7 @@ def test_n_rooks_block_is_validated(k, block, message):
       "structure_guidance": None, "structure_temperature": None}, "needs a structure"),
 ])
 def test_card_structure_block_is_validated(card_change, message):
-    from diffsampler_rt.card import CARD_KEY, parse_card
-    card = {**diffsampler_rt.load("ldbn_fast").card, **card_change}
-    card = {k: v for k, v in card.items() if v is not None}
-    with pytest.raises(ModelFormatError, match="structure_block") as err:
-        parse_card({CARD_KEY: json.dumps(card)}, "m")
-    assert message in str(err.value)
+    assert message in changed_card_error("ldbn_fast", card_change, "structure_block")
 
 
 def test_card_structure_block_applies_in_the_solver_and_on_the_sets(tiny_onnx, tmp_path,
@@ -269,6 +266,25 @@ def test_spacing_goes_before_an_imposed_structure(tiny_onnx, tmp_path):
     np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: spacing only
                                   enforce_min_spacing(plain[64], 0.7 / 8))
 
+
+
+def test_evening_goes_before_an_imposed_structure(tiny_onnx, tmp_path):
+    """Like the spacing: a card's even_out moves the decoded set before the structure is
+    imposed (which then holds exactly), at the sizes where one is; elsewhere after."""
+    from diffsampler_rt.low_frequencies import even_out
+    from export.defaults import set_defaults
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (64, 256)}
+    set_defaults(path, structure="n_rooks", structure_min_side=16,
+                 even_out={"cut": 0.5, "gain": 0.6})
+    m = diffsampler_rt.Model(path)
+    both = m.generate(256, 3, seed=6)
+    np.testing.assert_array_equal(
+        both, structure._impose(even_out(plain[256], 0.6, cut=0.5), 16, "n_rooks"))
+    assert stratified_projections(both).all()
+    np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: evening only
+                                  even_out(plain[64], 0.6, cut=0.5))
 
 @pytest.mark.parametrize("extra, message", [
     ({"structure_min_side": 16}, "'structure_min_side' needs a structure"),
