@@ -204,7 +204,7 @@ class Model:
             sampler's own sliced-OT iterations from the network's set, which take out its
             excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
             ``"even_out"`` (GBN, SOT students, at n = 4096 Poisson-disk models and beyond
-            4096 ldbn_fast: their sets' density deviations at large scales shrunk, or
+            4096 ldbn(_fast): their sets' density deviations at large scales shrunk, or
             amplified, by a smooth move; :mod:`diffsampler_rt.low_frequencies`),
             ``"restore_cut"`` (GBN models 1, sot /
             sot_fast 0.4: where n is not a square, the thinned set's density restored from
