@@ -81,15 +81,14 @@ def _power_of_two(b) -> bool:
 
 def block_problem(block) -> str | None:
     """Why a card's ``"structure_block"`` value is invalid, or None."""
-    power = _power_of_two
     if isinstance(block, dict):
         sides, blocks = block.get("sides"), block.get("block")
         if (set(block) == {"sides", "block"} and isinstance(sides, list)
                 and isinstance(blocks, list) and len(sides) == len(blocks) > 0
-                and all(power(v) for v in sides + blocks)
+                and all(_power_of_two(v) for v in sides + blocks)
                 and all(a < b for a, b in zip(sides, sides[1:]))):
             return None
-    elif power(block):
+    elif _power_of_two(block):
         return None
     return ("'structure_block' must be a power of two >= 1, or {\"sides\": [K, ...], "
             "\"block\": [B, ...]} with increasing power-of-two sides and power-of-two blocks, "

@@ -245,46 +245,40 @@ def test_n_rooks_card_min_side_and_guidance(tiny_onnx, tmp_path):
     assert not {"structure", "structure_min_side", "structure_guidance"} & set(card)
 
 
-def test_spacing_goes_before_an_imposed_structure(tiny_onnx, tmp_path):
-    """The structure must hold exactly, so a card's spacing is restored before it (after it,
-    the pushes would take points out of their strips); where none is imposed, after."""
+def _spaced(points: np.ndarray, k: int) -> np.ndarray:
     from diffsampler_rt.spacing import enforce_min_spacing
+    return enforce_min_spacing(points, 0.7 / k)
+
+
+def _evened(points: np.ndarray, k: int) -> np.ndarray:
+    from diffsampler_rt.low_frequencies import even_out
+    return even_out(points, 0.6, cut=0.5)
+
+
+@pytest.mark.parametrize("setting, move", [
+    ({"min_spacing": 0.7}, _spaced),
+    ({"even_out": {"cut": 0.5, "gain": 0.6}}, _evened),
+])
+def test_moves_go_before_an_imposed_structure(tiny_onnx, tmp_path, setting, move):
+    """The structure must hold exactly, so a card's spacing and evening move the decoded set
+    before it (after it, the moves would take points out of their strips); where none is
+    imposed, after."""
     from export.defaults import set_defaults
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (64, 256)}
-    set_defaults(path, structure="n_rooks", structure_min_side=16, min_spacing=0.7)
+    set_defaults(path, structure="n_rooks", structure_min_side=16, **setting)
     m = diffsampler_rt.Model(path)
     both = m.generate(256, 3, seed=6)
-    # a push may cross a cell border; the structure puts the point back in a strip of its
-    # own cell (so the checked impose_n_rooks would refuse the pushed set)
-    spaced = enforce_min_spacing(plain[256], 0.7 / 16)
-    np.testing.assert_array_equal(both, structure._impose(spaced, 16, "n_rooks"))
+    # a move may cross a cell border; the structure puts the point back in a strip of its
+    # own cell (so the checked impose_n_rooks would refuse the moved set)
+    np.testing.assert_array_equal(both, structure._impose(move(plain[256], 16), 16, "n_rooks"))
     assert stratified_projections(both).all()
     cells = np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2)
     assert np.array_equal(np.floor(both * 16), np.broadcast_to(cells, both.shape))
-    np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: spacing only
-                                  enforce_min_spacing(plain[64], 0.7 / 8))
+    np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: the move only
+                                  move(plain[64], 8))
 
-
-
-def test_evening_goes_before_an_imposed_structure(tiny_onnx, tmp_path):
-    """Like the spacing: a card's even_out moves the decoded set before the structure is
-    imposed (which then holds exactly), at the sizes where one is; elsewhere after."""
-    from diffsampler_rt.low_frequencies import even_out
-    from export.defaults import set_defaults
-    path = tmp_path / "m.onnx"
-    shutil.copy(tiny_onnx, path)
-    plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (64, 256)}
-    set_defaults(path, structure="n_rooks", structure_min_side=16,
-                 even_out={"cut": 0.5, "gain": 0.6})
-    m = diffsampler_rt.Model(path)
-    both = m.generate(256, 3, seed=6)
-    np.testing.assert_array_equal(
-        both, structure._impose(even_out(plain[256], 0.6, cut=0.5), 16, "n_rooks"))
-    assert stratified_projections(both).all()
-    np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: evening only
-                                  even_out(plain[64], 0.6, cut=0.5))
 
 @pytest.mark.parametrize("extra, message", [
     ({"structure_min_side": 16}, "'structure_min_side' needs a structure"),
