@@ -793,11 +793,19 @@ def _stored_option(source: bool | str | None) -> str:
     return " --stored-reference" + ("" if source is True else f" {source}")
 
 
+def _row_runs(r: dict):
+    """The runs that measured a result's rows: a row taken over from an earlier run names it
+    under ``"measured"``, a stored reference side under ``"reference"``; a ``--merge`` run
+    that measured no size (a check that the kept rows reproduce) is not one of them."""
+    for row in r["rows"].values():
+        yield row.get("measured", r)
+        if "reference" in row:
+            yield row["reference"]
+
+
 def report(results: list[dict], missing: list[str], out: Path) -> None:
-    runs = sorted({(r["date"], json.dumps(r["settings"], sort_keys=True)) for r in results}
-                  | {(row[k]["date"], json.dumps(row[k]["settings"], sort_keys=True))
-                     for r in results for row in r["rows"].values()
-                     for k in ("measured", "reference") if k in row})
+    runs = sorted({(run["date"], json.dumps(run["settings"], sort_keys=True))
+                   for r in results for run in _row_runs(r)})
     how = "; ".join(
         f"`python benchmarks/fidelity.py --sets {st['sets']} --slow-sets {st['slow_sets']} "
         f"--slow-4096 {st['slow_4096']} --spectrum-sets {st['spectrum_sets']}"

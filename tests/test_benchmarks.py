@@ -453,6 +453,20 @@ def test_fidelity_merge_draws_the_plot_examples_at_the_size_it_shows(tmp_path):
     assert "example_gen" not in merge_kept(now, tmp_path, seed=1)["rows"][64]
 
 
+def test_fidelity_run_line_lists_only_the_runs_that_measured_rows():
+    # a --merge run that measured no size (a reproduction check after a card change) keeps
+    # every row from earlier runs; its own date and options are not a measurement
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.fidelity import _row_runs
+    early = {"date": "2026-11-25", "settings": {"sets": 256}}
+    stored = {"date": "2026-11-20", "settings": {"sets": 64}}
+    check = {"date": "2026-12-03", "settings": {"sets": 128},
+             "rows": {64: {"measured": early}, 256: {"measured": early, "reference": stored}}}
+    assert [r["date"] for r in _row_runs(check)] == ["2026-11-25", "2026-11-25", "2026-11-20"]
+    measured = {**check, "rows": {**check["rows"], 1024: {"mae": 0.1}}}
+    assert "2026-12-03" in [r["date"] for r in _row_runs(measured)]
+
+
 def test_plot_example_reference_comes_from_the_cache_when_it_has_one(tmp_path, monkeypatch):
     # the slow samplers take minutes a set at 4096: a plot's example reuses a cached set
     sys.path.insert(0, str(ROOT))
