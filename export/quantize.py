@@ -16,10 +16,14 @@ Measured choices (benchmarks/results/quantized.md has the numbers):
 - a circular net's ``Pad(mode="wrap")`` nodes (export/wrap_pad.py) are moved after the
   QuantizeLinear they feed and written as Slice and Concat: the same values, bit for bit,
   copied as bytes in blocks (gbn_torus_fast at n = 1024, 32 sets: 35.8 -> 32.9 ms a set);
-- weights are unsigned 8-bit (asymmetric, per channel): x86 CPUs without VNNI multiply
-  unsigned x signed bytes with an instruction that saturates, and onnxruntime runs
-  unsigned x unsigned without it; on this VNNI CPU both cost the same. 7-bit signed weights
-  (``reduce_range``, the other cure) wrecked the sets (integration errors x4).
+- weights are unsigned 8-bit (asymmetric, per channel). x86 CPUs without VNNI multiply
+  unsigned x signed bytes with an instruction that saturates, and onnxruntime's
+  QLinearConv takes that route even for unsigned weights unless the session sets
+  ``session.x64quantprecision`` (seen on an AVX2-only AMD EPYC host in session 66:
+  gbn_fast's noise prediction 2.0 % off its float model's instead of 0.9 %), so the
+  runtime's sessions set it (``diffsampler_rt.model.session_options``); on VNNI CPUs it
+  changes nothing. 7-bit signed weights (``reduce_range``, the other cure) wrecked the
+  sets (integration errors x4).
 
 The card keeps everything it had and gains ``"weights": "int8"`` and a ``"quantization"``
 record (method, calibration sides, sets and feeds, and the float network's short SHA-1, as
