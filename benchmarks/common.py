@@ -26,6 +26,29 @@ def model_hash(model: str | Path) -> str:
     return hashlib.sha256(resolve(model).read_bytes()).hexdigest()
 
 
+#: x86 features that change what an 8-bit or bf16 network costs (and, without VNNI,
+#: what onnxruntime's 8-bit products need: diffsampler_rt.model.session_options)
+CPU_FEATURES = ("avx2", "avx512f", "avx512_vnni", "avx_vnni", "avx512_bf16", "amx_int8")
+
+
+def cpu_description(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
+    """The host's processor for a timing report: model name and which of
+    :data:`CPU_FEATURES` it has, e.g. ``"AMD EPYC (avx2; no VNNI)"``; the machine type
+    where /proc/cpuinfo cannot be read."""
+    import platform
+    try:
+        text = Path(cpuinfo).read_text()
+    except OSError:
+        return platform.machine() or "unknown CPU"
+    fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    name = fields.get("model name", platform.machine() or "unknown CPU")
+    flags = set(fields.get("flags", "").split())
+    have = [f for f in CPU_FEATURES if f in flags]
+    vnni = "" if {"avx512_vnni", "avx_vnni"} & flags else "; no VNNI"
+    return f"{name} ({', '.join(have) or 'none of ' + '/'.join(CPU_FEATURES)}{vnni})"
+
+
 FLOAT_DIR = ROOT / "models" / "float"
 
 

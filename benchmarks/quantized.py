@@ -13,7 +13,7 @@ idle machine): one denoiser evaluation at k = 32 (batch 32) and ``generate`` at 
 (batched and alone), float and quantised alternated, each measured in a fresh process. The
 reference sampler is not run here: the fidelity report measures the bundled (quantised)
 file against it. Writes
-benchmarks/results/quantized.md (each model's section, and the timing table, kept in
+benchmarks/results/quantized.md (each model's section, and the timing tables, one per day, kept in
 benchmarks/results/quantized/).
 
     python benchmarks/quantized.py [--models gbn_fast] [--sets 128] [--sets-4096 32]
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
-from benchmarks.common import FLOAT_DIR, float_source  # noqa: E402
+from benchmarks.common import FLOAT_DIR, cpu_description, float_source  # noqa: E402
 from benchmarks.fidelity import (STATS, TOL_MEAN, TOL_MIND, set_stats,  # noqa: E402
                                  tolerance)
 from benchmarks.ort_tuning import ms_per_set, plain  # noqa: E402
@@ -118,8 +118,8 @@ def timing(models: list[str], float_dir: Path, rounds: int) -> list[str]:
              f"n = 1024, ms per set, float / 8-bit: medians of {rounds} rounds that alternate "
              "the two, each measurement in a fresh process (one evaluation: median of 5 calls "
              "after 2 warm-ups; generate: median of 3 calls after a warm-up; "
-             f"{os.cpu_count()} cores, onnxruntime's default threads). Run with nothing else "
-             "on the machine (`--timing-only`).", "",
+             f"{os.cpu_count()} cores of {cpu_description()}, onnxruntime's default "
+             "threads). Run with nothing else on the machine (`--timing-only`).", "",
              "| model | one evaluation (batch 32) | generate, batch of 32 | generate, alone |",
              "|---|---|---|---|"]
     for name in models:
@@ -148,8 +148,9 @@ def main() -> None:
     a = p.parse_args()
     kept = a.out.parent / "quantized"
     kept.mkdir(parents=True, exist_ok=True)
+    # one timing table per day: the 8-bit files' gain depends on the host's CPU (VNNI or not)
     if a.timing_only:
-        (kept / "timing.md").write_text("\n".join(timing(a.models or quantised(), a.float_dir,
+        (kept / f"timing-{dt.date.today().isoformat()}.md").write_text("\n".join(timing(a.models or quantised(), a.float_dir,
                                                          a.rounds)))
     models = [] if a.report_only or a.timing_only else (a.models or quantised())
     header = ["# 8-bit convolutions vs the float model, same noise", "",
@@ -161,8 +162,8 @@ def main() -> None:
               "float model's point of the same cell, in mean spacings 1/sqrt(n) (an "
               "OT-embedded model may swap a whole neighbourhood, so its tail is long). "
               "Default solver, steps and repairs of each card. Each model's section is kept "
-              "in benchmarks/results/quantized/ and says when it was run; the timing table "
-              "comes last.", ""]
+              "in benchmarks/results/quantized/ and says when it was run; the timing "
+              "tables come last, one per day they were measured.", ""]
     with ProcessPoolExecutor(a.workers) as pool:
         for name in models:
             fpath = float_source(name, a.float_dir)
@@ -182,9 +183,9 @@ def main() -> None:
             for n in a.sizes:
                 lines += rows_at(pool, fmodel, qmodel, n, a.sets_4096 if n >= 4096 else a.sets)
             (kept / f"{name}.md").write_text("\n".join(lines + [""]))
-    timed = kept / "timing.md"
-    sections = [p.read_text() for p in sorted(kept.glob("*.md")) if p != timed]
-    sections += [timed.read_text()] if timed.exists() else []
+    timed = sorted(kept.glob("timing*.md"))
+    sections = [p.read_text() for p in sorted(kept.glob("*.md")) if p not in timed]
+    sections += [p.read_text() for p in timed]
     a.out.write_text("\n".join(header + sections))
     print(f"wrote {a.out}")
 

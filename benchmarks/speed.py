@@ -18,7 +18,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import re
 import subprocess
 import sys
@@ -128,6 +127,7 @@ def measure(a, kept: dict | None = None) -> dict:
     not started just to be stopped."""
     sys.path.insert(0, str(ROOT))
     import diffsampler_rt
+    from benchmarks.common import cpu_description
     models = a.models or diffsampler_rt.list_models()
     results: dict = {}
     for name in models:
@@ -159,7 +159,8 @@ def measure(a, kept: dict | None = None) -> dict:
             print(f"{name} n={n}: alone {fmt_s(r['alone_s'])}, batch "
                   f"{fmt_s(r.get('batch_s_per_set'))}/set, peak {r['peak_mib']:.0f} MiB, "
                   f"reference {fmt_s(r.get('ref_s'))} {r.get('ref_note', '')}", flush=True)
-        results[name] = {"sampler": sampler, "rows": rows, "date": dt.date.today().isoformat()}
+        results[name] = {"sampler": sampler, "rows": rows, "date": dt.date.today().isoformat(),
+                         "cpu": cpu_description()}
     return results
 
 
@@ -184,6 +185,18 @@ def _dates_text(results: dict, date: str) -> str:
     return ", ".join(head) + f", {parts[-1][0]} (the other {len(parts[-1][1])} models)"
 
 
+def _cpus_text(results: dict) -> str:
+    """The CPU of each model's latest run: one name, or, where they differ, each with its
+    models (the same 2-core machine class has come with CPUs 2.5x apart)."""
+    by_cpu: dict[str, list[str]] = {}
+    for m, r in results.items():
+        by_cpu.setdefault(r.get("cpu", "a CPU not recorded"), []).append(m)
+    if len(by_cpu) < 2:
+        return next(iter(by_cpu), "a CPU not recorded")
+    return "; ".join(f"{c} ({', '.join(ms)})" for c, ms in sorted(by_cpu.items(),
+                                                                  key=lambda kv: (len(kv[1]), kv[0])))
+
+
 def report(results: dict, a, date: str) -> None:
     fid_path = ROOT / "benchmarks" / "results" / "fidelity.json"
     fid = json.loads(fid_path.read_text()) if fid_path.exists() else {}
@@ -191,7 +204,7 @@ def report(results: dict, a, date: str) -> None:
         "# Generation speed vs the reference samplers",
         "",
         f"`python benchmarks/speed.py` on {_dates_text(results, date)}: {os.cpu_count()} cores "
-        f"({platform.processor() or platform.machine()}), onnxruntime "
+        f"of {_cpus_text(results)}, onnxruntime "
         f"{_ort_version()}, intra-op threads: {a.threads or 'onnxruntime default (all cores)'}. "
         "Each figure comes from a fresh process that does nothing else (median of "
         f"{a.repeats} single-set runs after a warm-up; batches: median of {a.repeats} timed "
@@ -322,7 +335,7 @@ def kept_json(results: dict) -> dict:
     """speed.json's content: per model its sampler, its rows by n and the date of its latest
     run (which the next run's header needs, so it is kept with the rows)."""
     return {m: {"sampler": res["sampler"], "rows": {str(n): r for n, r in res["rows"].items()},
-                **({"date": res["date"]} if "date" in res else {})}
+                **{k: res[k] for k in ("date", "cpu") if k in res}}
             for m, res in results.items()}
 
 
@@ -330,7 +343,7 @@ def merge_kept(old: dict, new: dict) -> dict:
     """speed.json's kept results with this run's on top, size by size: a run over some
     sizes of a model replaces those rows and keeps the model's others."""
     out = {m: {"sampler": r["sampler"], "rows": {int(n): row for n, row in r["rows"].items()},
-               **({"date": r["date"]} if "date" in r else {})}
+               **{k: r[k] for k in ("date", "cpu") if k in r}}
            for m, r in old.items()}
     for m, r in new.items():
         rows = {**out.get(m, {}).get("rows", {}), **r["rows"]}

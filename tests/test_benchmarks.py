@@ -483,3 +483,26 @@ def test_plot_example_reference_comes_from_the_cache_when_it_has_one(tmp_path, m
     np.savez(reference_path("sobol_owen", 256, 4, 1), pts=np.zeros((4, 256, 2)), per_set=0.1)
     np.testing.assert_array_equal(example_reference("sobol_owen", 64, seed=3), cached[0])
     assert example_reference("sobol_owen", 256, seed=3).shape == (256, 2)
+
+
+def test_cpu_description_names_the_model_and_its_vnni(tmp_path):
+    from benchmarks.common import cpu_description
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse avx avx2 fma\n")
+    assert cpu_description(info) == "AMD EPYC (avx2; no VNNI)"
+    info.write_text("model name\t: Xeon\nflags\t: avx2 avx512f avx512_vnni avx512_bf16\n")
+    assert cpu_description(info) == "Xeon (avx2, avx512f, avx512_vnni, avx512_bf16)"
+    assert cpu_description(tmp_path / "missing")  # the machine type, never an error
+
+
+def test_speed_report_names_each_models_cpu():
+    import json
+    from benchmarks.speed import _cpus_text, kept_json, merge_kept
+    old = {"gbn": {"sampler": "gbn", "rows": {}, "date": "2026-11-28"},
+           "sot": {"sampler": "sot", "rows": {}, "date": "2026-11-28"}}
+    assert _cpus_text(old) == "a CPU not recorded"  # a speed.json from before the CPU was kept
+    merged = merge_kept(old, {"sot": {"sampler": "sot", "rows": {}, "date": "2026-12-04",
+                                      "cpu": "AMD EPYC (avx2; no VNNI)"}})
+    assert _cpus_text(merged) == "AMD EPYC (avx2; no VNNI) (sot); a CPU not recorded (gbn)"
+    again = merge_kept(json.loads(json.dumps(kept_json(merged))), {})  # kept in speed.json
+    assert again["sot"]["cpu"] == "AMD EPYC (avx2; no VNNI)" and "cpu" not in again["gbn"]
