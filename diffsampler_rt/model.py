@@ -400,7 +400,8 @@ def session_options(threads: int | None = None, *,
     onnxruntime's fast unsigned x signed byte product saturates its 16-bit sums, which
     doubled gbn_fast's noise-prediction error on such a host (2.0 % instead of 0.9 % of
     its RMS); ``session.x64quantprecision`` makes it use the exact kernel there (a little
-    slower) and changes nothing on CPUs with VNNI or on float models.
+    slower); by onnxruntime's own account (its pull request 12088) it applies only on x86
+    CPUs without VNNI and to 8-bit operators, so float models and VNNI CPUs are untouched.
     """
     opts = ort.SessionOptions()
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL

@@ -83,6 +83,20 @@ def test_every_session_asks_for_exact_8_bit_products():
         assert opts.get_session_config_entry(X64_QUANT_PRECISION) == "1"
 
 
+def test_exact_8_bit_option_leaves_float_networks_alone(tiny_onnx, monkeypatch):
+    from diffsampler_rt import model as M
+    with_it = M.Model(tiny_onnx).generate(64, 2, seed=3)
+    plain = M.session_options
+
+    def without(threads=None, *, spinning=True):
+        opts = plain(threads, spinning=spinning)
+        opts.add_session_config_entry(M.X64_QUANT_PRECISION, "0")
+        return opts
+
+    monkeypatch.setattr(M, "session_options", without)
+    np.testing.assert_array_equal(M.Model(tiny_onnx).generate(64, 2, seed=3), with_it)
+
+
 def test_quantising_twice_or_warm_starting_from_int8_is_refused(tiny_int8, tmp_path):
     with pytest.raises(ValueError, match="already int8"):
         quantize(tiny_int8, tmp_path / "again.onnx")
