@@ -13,8 +13,8 @@ idle machine): one denoiser evaluation at k = 32 (batch 32) and ``generate`` at 
 (batched and alone), float and quantised alternated, each measured in a fresh process. The
 reference sampler is not run here: the fidelity report measures the bundled (quantised)
 file against it. Writes
-benchmarks/results/quantized.md (each model's section, and the timing tables, one per day, kept in
-benchmarks/results/quantized/).
+benchmarks/results/quantized.md (each model's section, and the timing tables, one per day,
+kept in benchmarks/results/quantized/).
 
     python benchmarks/quantized.py [--models gbn_fast] [--sets 128] [--sets-4096 32]
     python benchmarks/quantized.py --timing-only
@@ -150,8 +150,8 @@ def main() -> None:
     kept.mkdir(parents=True, exist_ok=True)
     # one timing table per day: the 8-bit files' gain depends on the host's CPU (VNNI or not)
     if a.timing_only:
-        (kept / f"timing-{dt.date.today().isoformat()}.md").write_text("\n".join(timing(a.models or quantised(), a.float_dir,
-                                                         a.rounds)))
+        table = timing(a.models or quantised(), a.float_dir, a.rounds)
+        (kept / f"timing-{dt.date.today().isoformat()}.md").write_text("\n".join(table))
     models = [] if a.report_only or a.timing_only else (a.models or quantised())
     header = ["# 8-bit convolutions vs the float model, same noise", "",
               f"`python benchmarks/quantized.py` ({os.cpu_count()} cores). Per row: the "

@@ -129,6 +129,7 @@ def measure(a, kept: dict | None = None) -> dict:
     import diffsampler_rt
     from benchmarks.common import cpu_description
     models = a.models or diffsampler_rt.list_models()
+    cpu = cpu_description()
     results: dict = {}
     for name in models:
         sampler = diffsampler_rt.load(name).card["sampler"]
@@ -160,7 +161,7 @@ def measure(a, kept: dict | None = None) -> dict:
                   f"{fmt_s(r.get('batch_s_per_set'))}/set, peak {r['peak_mib']:.0f} MiB, "
                   f"reference {fmt_s(r.get('ref_s'))} {r.get('ref_note', '')}", flush=True)
         results[name] = {"sampler": sampler, "rows": rows, "date": dt.date.today().isoformat(),
-                         "cpu": cpu_description()}
+                         "cpu": cpu}
     return results
 
 
@@ -171,12 +172,19 @@ def last_run_date(md: Path) -> str | None:
     return m.group(1) if m else None
 
 
+def _models_by(results: dict, key: str, missing: str | None = None) -> dict:
+    """The models of ``results`` grouped by the value of ``key`` in their latest run
+    (``missing`` where a kept run did not record it), in the order of results."""
+    groups: dict = {}
+    for m, r in results.items():
+        groups.setdefault(r.get(key, missing), []).append(m)
+    return groups
+
+
 def _dates_text(results: dict, date: str) -> str:
     """"2026-12-02", or, where models' latest runs differ, "2026-12-02 (sot), 2026-11-28
     (the other 21 models)": each model's rows come from its latest run (speed.json)."""
-    by_date: dict[str | None, list[str]] = {}
-    for m, r in results.items():
-        by_date.setdefault(r.get("date"), []).append(m)
+    by_date = _models_by(results, "date")
     if len(by_date) < 2:  # one date, or none recorded (a speed.json from before dates)
         return next(iter(by_date), None) or date
     parts = [(d or "an earlier date", ms) for d, ms in sorted(by_date.items(),
@@ -188,13 +196,11 @@ def _dates_text(results: dict, date: str) -> str:
 def _cpus_text(results: dict) -> str:
     """The CPU of each model's latest run: one name, or, where they differ, each with its
     models (the same 2-core machine class has come with CPUs 2.5x apart)."""
-    by_cpu: dict[str, list[str]] = {}
-    for m, r in results.items():
-        by_cpu.setdefault(r.get("cpu", "a CPU not recorded"), []).append(m)
+    by_cpu = _models_by(results, "cpu", "a CPU not recorded")
     if len(by_cpu) < 2:
         return next(iter(by_cpu), "a CPU not recorded")
-    return "; ".join(f"{c} ({', '.join(ms)})" for c, ms in sorted(by_cpu.items(),
-                                                                  key=lambda kv: (len(kv[1]), kv[0])))
+    parts = sorted(by_cpu.items(), key=lambda kv: (len(kv[1]), kv[0]))
+    return "; ".join(f"{c} ({', '.join(ms)})" for c, ms in parts)
 
 
 def report(results: dict, a, date: str) -> None:
