@@ -1,8 +1,10 @@
 """onnxruntime settings for one denoiser evaluation on this machine: what the runtime uses.
 
 Times one network evaluation (k = 32, i.e. n = 1024) of a bundled model per set, for
-batch sizes, intra-op thread counts, two single-thread sessions splitting a batch, the
-fp16-stored file against its float32 form and its 8-bit convolutions (``python -m export
+batch sizes: one session on every core's threads, one single-thread session per core
+each on its slice of the batch (diffsampler_rt.shards, what the runtime does with a batch
+of at least one set per core), one thread; and the fp16-stored file against its float32
+form and its 8-bit convolutions (``python -m export
 quantize``, as the bundled ``_fast`` models are made; for those, the float file in
 models/float/ is the starting point); plus operator profiles, float and 8-bit. Writes
 benchmarks/results/ort_tuning.md.
@@ -18,7 +20,6 @@ import json
 import os
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -29,7 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from diffsampler_rt.model import resolve, session_options  # noqa: E402
-from benchmarks.common import float_source  # noqa: E402
+from diffsampler_rt.shards import Shards, usable_cores  # noqa: E402
+from benchmarks.common import cpu_description, float_source  # noqa: E402
 from export.quantize import float32_file, quantize  # noqa: E402
 
 K = 32
@@ -66,19 +68,12 @@ def plain(sess, batch: int):
     return lambda: sess.run(["eps"], feed)
 
 
-def split_in_two(a, b, batch: int):
-    """Two single-thread sessions, each on half the batch, in two Python threads."""
+def sharded(path: str, batch: int):
+    """One single-thread session per core, each on its slice of the batch, side by side:
+    the runtime's way (diffsampler_rt.shards)."""
+    shards = Shards(lambda: session(path, threads=1), usable_cores())
     feed = inputs(batch)
-    h = batch // 2
-    first = {k: v[:h] for k, v in feed.items()}
-    second = {k: v[h:] for k, v in feed.items()}
-
-    def run():
-        th = threading.Thread(target=a.run, args=(["eps"], first))
-        th.start()
-        b.run(["eps"], second)
-        th.join()
-    return run
+    return lambda: shards.run(feed["x"], feed["t"])
 
 
 def op_profile(path: str, batch: int, tmp: str) -> list[tuple[str, float, int]]:
@@ -102,20 +97,22 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=10)
     a = p.parse_args()
     path = str(float_source(a.model))
+    cores = usable_cores()
     rows = []
     default = session(path)
     one = session(path, threads=1)
     for batch in (1, 4, 8, 16, 32, 64):
-        rows.append((f"batch {batch}", ms_per_set(plain(default, batch), batch, a.repeats),
+        rows.append((batch, ms_per_set(plain(default, batch), batch, a.repeats),
+                     ms_per_set(sharded(path, batch), batch, a.repeats) if batch >= cores
+                     else float("nan"),
                      ms_per_set(plain(one, batch), batch, a.repeats)))
         print(rows[-1], flush=True)
-    halves = session(path, threads=1), session(path, threads=1)
-    split = [ms_per_set(split_in_two(*halves, b), b, a.repeats) for b in (16, 32)]
     with tempfile.TemporaryDirectory() as tmp:
         f32, q8 = os.path.join(tmp, "f32.onnx"), os.path.join(tmp, "int8.onnx")
         float32_file(path, f32)
         quantize(path, q8)  # as the bundled 8-bit models are made
-        files = [(label, ms_per_set(plain(session(f), 32), 32, a.repeats))
+        files = [(label, ms_per_set(plain(session(f), 32), 32, a.repeats),
+                  ms_per_set(sharded(f, 32), 32, a.repeats))
                  for label, f in (("fp16-stored weights", path), ("float32 weights", f32),
                                   ("8-bit convolutions (`python -m export quantize`)", q8))]
         profile = op_profile(path, 32, tmp)
@@ -124,23 +121,24 @@ def main() -> None:
         "# onnxruntime settings for one denoiser evaluation",
         "",
         f"`python benchmarks/ort_tuning.py --model {a.model}` on {dt.date.today().isoformat()}"
-        f": {os.cpu_count()} cores, onnxruntime {ort.__version__}; one evaluation at k = 32 "
-        f"(n = 1024), ms per set, median of {a.repeats} calls. A sampling run costs its step "
-        "count times this (8 steps for the distilled models, 20 for the others).",
+        f": {cores} cores of {cpu_description()}, onnxruntime {ort.__version__}; one "
+        f"evaluation at k = 32 (n = 1024), ms per set, median of {a.repeats} calls. A "
+        "sampling run costs its step count times this (8 steps for the distilled models, "
+        "20 for the others).",
         "",
-        "| batch | 2 threads (runtime default) | 1 thread |",
+        f"| batch | one session, {cores} threads | {cores} single-thread sessions side by "
+        "side, one slice each (runtime, batch >= cores) | one session, 1 thread |",
+        "|---|---|---|---|",
+        *[f"| {b} | {whole:.2f} | {'-' if np.isnan(split) else f'{split:.2f}'} | "
+          f"{single:.2f} |" for b, whole, split, single in rows],
+        "",
+        f"| weights (batch 32) | one session, {cores} threads | {cores} single-thread "
+        "sessions |",
         "|---|---|---|",
-        *[f"| {label.split()[1]} | {two:.2f} | {single:.2f} |" for label, two, single in rows],
+        *[f"| {label} | {v:.2f} | {w:.2f} |" for label, v, w in files],
         "",
-        f"Two single-thread sessions, each on half the batch, in parallel: {split[0]:.2f} ms "
-        f"per set at batch 16, {split[1]:.2f} at 32.",
-        "",
-        "| weights (batch 32, 2 threads) | ms per set |",
-        "|---|---|",
-        *[f"| {label} | {v:.2f} |" for label, v in files],
-        "",
-        "Operator profile of the runtime's session (batch 32, share of kernel time), float "
-        "and 8-bit:",
+        "Operator profile of one session (batch 32, all cores' threads, share of kernel "
+        "time), float and 8-bit:",
         "",
         "| operator | share | nodes |",
         "|---|---|---|",

@@ -24,6 +24,7 @@ from .low_frequencies import RESTORE_CUT, even_out
 from .metadata import WireFormatError, read_metadata
 from .per_size import cut_at, gain_at
 from .schedule import alphas_cumprod, timesteps
+from .shards import Shards, usable_cores
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
@@ -74,7 +75,11 @@ class Model:
     model : str or path-like
         A bundled model name (see :func:`diffsampler_rt.list_models`) or an ``.onnx`` path.
     threads : int, optional
-        onnxruntime intra-op threads (default: onnxruntime's choice, all cores).
+        Cores to use (default: every core this process may run on). A batch of at least
+        that many sets is split between that many single-thread onnxruntime sessions run
+        side by side (:mod:`diffsampler_rt.shards`); a smaller batch, a single set
+        included, runs on one session with that many intra-op threads (default:
+        onnxruntime's choice). The sets are the same either way, bit for bit.
 
     Notes
     -----
@@ -97,6 +102,8 @@ class Model:
                  _quiet: bool = False):
         self.path = resolve(model)
         threads = None if threads is None else _validate.integer("threads", threads)
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
         try:  # the card first: the session's options depend on it
             meta = read_metadata(self.path)
         except (OSError, WireFormatError):
@@ -119,6 +126,9 @@ class Model:
             raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")
         self.alpha_bar = alphas_cumprod(self.card["schedule"])
         self._threads = threads
+        cores = usable_cores() if threads is None else threads
+        self._shards = (Shards(lambda: self._session(session_options(1)), cores)
+                        if cores >= 2 else None)
         self._guide: Model | None = None
 
     def guide(self) -> "Model | None":
@@ -153,7 +163,11 @@ class Model:
     def denoise(self, x: np.ndarray, t: int) -> np.ndarray:
         """eps prediction for a batch x (B, 2, k, k) at timestep index t (float64 out)."""
         tt = np.full(x.shape[0], float(t), dtype=np.float32)
-        eps = self.session.run(["eps"], {"x": x.astype(np.float32), "t": tt})[0]
+        x = x.astype(np.float32)
+        if self._shards is not None and len(x) >= self._shards.count:
+            eps = self._shards.run(x, tt)
+        else:
+            eps = self.session.run(["eps"], {"x": x, "t": tt})[0]
         return eps.astype(np.float64)
 
     def generate(self, n: int, count: int | None = None, *,

@@ -1,0 +1,63 @@
+"""One network evaluation of a batch, split across the cores: one single-thread session each.
+
+onnxruntime parallelises one run inside each operator, and a denoiser evaluation is a long
+chain of small operators (a k = 32 grid is 1024 cells), so its threads wait on each other
+at every node. Giving each core its own single-thread session and its own slice of the
+batch, run side by side, leaves nothing to wait on. On a 2-core AMD EPYC (AVX2) one
+evaluation of gbn_fast at n = 1024 in a batch of 32 took 4.9-5.2 instead of 5.7-6.3 ms a
+set with the float network and 5.6 instead of 8.1-8.5 ms with the 8-bit one
+(benchmarks/results/ort_tuning.md has the table). The outputs are bit for bit those of
+one session on the whole batch: onnxruntime's CPU kernels compute each set on its own and
+split no sum across threads (tests/test_shards.py checks it on the bundled models).
+"""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
+
+import numpy as np
+
+
+def usable_cores() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        return os.cpu_count() or 1
+
+
+class Shards:
+    """``count`` sessions of one network, made by ``make`` on first use, each running a
+    contiguous slice of a batch, in parallel (onnxruntime releases the GIL while it runs).
+
+    Parameters
+    ----------
+    make : callable
+        Returns a new single-thread ``onnxruntime.InferenceSession`` of the network.
+    count : int
+        Number of sessions (>= 2): the cores to use.
+    """
+
+    def __init__(self, make: Callable[[], "object"], count: int):
+        if count < 2:
+            raise ValueError(f"Shards needs count >= 2, got {count}")
+        self.count = count
+        self._make = make
+        self._sessions: list = []
+        self._pool: ThreadPoolExecutor | None = None
+
+    def run(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """eps for the batch ``x`` (B >= ``count``, float32) at timesteps ``t`` (B,)."""
+        if len(x) < self.count:
+            raise ValueError(f"a batch of {len(x)} cannot feed {self.count} shards")
+        if not self._sessions:
+            self._sessions = [self._make() for _ in range(self.count)]
+            self._pool = ThreadPoolExecutor(self.count - 1, thread_name_prefix="diffsampler")
+        bounds = np.linspace(0, len(x), self.count + 1).round().astype(int)
+        feeds = [{"x": x[a:b], "t": t[a:b]} for a, b in zip(bounds[:-1], bounds[1:])]
+        # the calling thread runs the last slice itself
+        futures = [self._pool.submit(s.run, ["eps"], f)
+                   for s, f in zip(self._sessions[:-1], feeds[:-1])]
+        last = self._sessions[-1].run(["eps"], feeds[-1])[0]
+        return np.concatenate([f.result()[0] for f in futures] + [last])

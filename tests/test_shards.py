@@ -1,0 +1,68 @@
+"""A batch split across single-thread sessions, one per core (diffsampler_rt.shards)."""
+import numpy as np
+import onnxruntime as ort
+import pytest
+
+import diffsampler_rt
+from diffsampler_rt.model import X64_QUANT_PRECISION, Model, resolve, session_options
+from diffsampler_rt.shards import Shards, usable_cores
+
+
+def _session(path, threads):
+    return ort.InferenceSession(str(path), sess_options=session_options(threads),
+                                providers=["CPUExecutionProvider"])
+
+
+def test_usable_cores_counts_at_least_one():
+    assert usable_cores() >= 1
+
+
+@pytest.mark.parametrize("name", ["gbn_fast", "sot"])  # 8-bit convolutions, float
+def test_shards_give_one_sessions_eps_bit_for_bit(name):
+    path = resolve(name)
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((7, 2, 16, 16)).astype(np.float32)
+    t = rng.integers(0, 1000, 7).astype(np.float32)  # a timestep per set, as the slices keep
+    expected = _session(path, 2).run(["eps"], {"x": x, "t": t})[0]
+    for count in (2, 3, 7):
+        got = Shards(lambda: _session(path, 1), count).run(x, t)
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_sets_do_not_depend_on_the_cores_used():
+    one = Model("gbn_fast", threads=1)
+    assert one._shards is None
+    three = Model("gbn_fast", threads=3)  # more shards than this machine may have cores
+    np.testing.assert_array_equal(three.generate(256, 5, seed=4), one.generate(256, 5, seed=4))
+    assert len(three._shards._sessions) == 3
+    for s in three._shards._sessions:  # made with the runtime's options, one thread each
+        opts = s.get_session_options()
+        assert opts.intra_op_num_threads == 1
+        assert opts.get_session_config_entry(X64_QUANT_PRECISION) == "1"
+
+
+def test_a_batch_smaller_than_the_cores_runs_on_the_whole_session(tiny_onnx):
+    m = Model(tiny_onnx, threads=4)
+    m.generate(64, 3, seed=0)
+    assert m._shards._sessions == []  # never made
+    m.generate(64, 4, seed=0)
+    assert len(m._shards._sessions) == 4
+
+
+def test_bad_thread_counts_and_shard_counts_are_refused(tiny_onnx):
+    for bad in (0, -2):
+        with pytest.raises(ValueError, match=f"threads must be >= 1, got {bad}"):
+            Model(tiny_onnx, threads=bad)
+    with pytest.raises(TypeError, match="threads must be an integer"):
+        Model(tiny_onnx, threads=2.0)
+    with pytest.raises(ValueError, match="count >= 2, got 1"):
+        Shards(lambda: None, 1)
+    with pytest.raises(ValueError, match="a batch of 2 cannot feed 3 shards"):
+        Shards(lambda: None, 3).run(np.zeros((2, 2, 4, 4), np.float32), np.zeros(2, np.float32))
+
+
+def test_default_model_uses_every_usable_core():
+    m = diffsampler_rt.load("rank1")
+    assert (m._shards is None) == (usable_cores() < 2)
+    if m._shards is not None:
+        assert m._shards.count == usable_cores()
