@@ -38,6 +38,16 @@ def batch_for(n: int, batch: int) -> int:
 # ---- children: one measurement each, printed as one JSON line ---------------------------
 
 def _peak_mib() -> float:
+    """This process's peak resident memory. Linux's ru_maxrss survives exec, so a child
+    would report its parent's size at the fork if that was larger (the parent that had
+    loaded every model did: 297-356 MiB "peaks" of 1024-point runs in session 67); the
+    kernel's VmHWM belongs to the process's own address space."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
     import resource
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
@@ -121,6 +131,16 @@ def earlier_reference(kept: dict, sampler: str, below: int, budget: float
     return best
 
 
+def card_of(model: str) -> dict:
+    """A model's card, read from its file without an onnxruntime session (a loaded model
+    would stay in this process, and its children would inherit the size: _peak_mib)."""
+    from diffsampler_rt.card import parse_card
+    from diffsampler_rt.metadata import read_metadata
+    from diffsampler_rt.model import resolve
+    path = resolve(model)
+    return parse_card(read_metadata(path), str(path))
+
+
 def measure(a, kept: dict | None = None) -> dict:
     """Time the models of ``a``; ``kept`` (speed.json's earlier results) seeds the estimate
     of a slow reference at the run's first size, so one known to take many minutes there is
@@ -132,7 +152,7 @@ def measure(a, kept: dict | None = None) -> dict:
     cpu = cpu_description()
     results: dict = {}
     for name in models:
-        sampler = diffsampler_rt.load(name).card["sampler"]
+        sampler = card_of(name)["sampler"]
         rows = {}
         ref_est = 0.0
         prev_n, prev_ref = earlier_reference(kept or {}, sampler, min(a.sizes), a.ref_budget)

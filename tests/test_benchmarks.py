@@ -177,6 +177,19 @@ def test_speed_results_merge_size_by_size():
     assert merged["gbn"]["rows"] == {1024: {"alone_s": 2.0}}
 
 
+def test_speed_peak_memory_is_the_childs_own():
+    # Linux's ru_maxrss survives exec: a child of a big parent reported the parent's size
+    big = np.ones(400 * 2 ** 20 // 8)  # this process: 400 MiB more, touched
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); "
+            "from benchmarks.speed import _peak_mib; print(_peak_mib())")
+    out = subprocess.run([sys.executable, "-c", code, str(ROOT)], capture_output=True,
+                         text=True, check=True)
+    assert 1 < float(out.stdout) < 200, out.stdout
+    assert big.sum() == big.size
+    from benchmarks.speed import card_of
+    assert card_of("sot_fast")["sampler"] == "sot"  # without loading it here
+
+
 def test_speed_report_dates_each_models_latest_run():
     """The report's header says which models' rows a run measured and which are older."""
     sys.path.insert(0, str(ROOT))
