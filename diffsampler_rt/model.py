@@ -24,7 +24,7 @@ from .low_frequencies import RESTORE_CUT, even_out
 from .metadata import WireFormatError, read_metadata
 from .per_size import cut_at, gain_at
 from .schedule import alphas_cumprod, timesteps
-from .shards import Shards, usable_cores
+from .shards import Shards, layout, usable_cores
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
@@ -76,10 +76,11 @@ class Model:
         A bundled model name (see :func:`diffsampler_rt.list_models`) or an ``.onnx`` path.
     threads : int, optional
         Cores to use (default: every core this process may run on). A batch of at least
-        that many sets is split between that many single-thread onnxruntime sessions run
-        side by side (:mod:`diffsampler_rt.shards`); a smaller batch, a single set
-        included, runs on one session with that many intra-op threads (default:
-        onnxruntime's choice). The sets are the same either way, bit for bit.
+        one set per core is split between single-thread onnxruntime sessions, one per core,
+        run side by side (beyond 8 cores, 8 sessions sharing the cores;
+        :mod:`diffsampler_rt.shards`); a smaller batch, a single set included, runs on one
+        session with that many intra-op threads (default: onnxruntime's choice). The sets
+        are the same either way, bit for bit.
 
     Notes
     -----
@@ -126,9 +127,9 @@ class Model:
             raise ModelFormatError(f"{self.path}: expected inputs x and t, found {sorted(names)}")
         self.alpha_bar = alphas_cumprod(self.card["schedule"])
         self._threads = threads
-        cores = usable_cores() if threads is None else threads
-        self._shards = (Shards(lambda: self._session(session_options(1)), cores)
-                        if cores >= 2 else None)
+        shards, each = layout(usable_cores() if threads is None else threads)
+        self._shards = (Shards(lambda: self._session(session_options(each)), shards)
+                        if shards >= 2 else None)
         self._guide: Model | None = None
 
     def guide(self) -> "Model | None":

@@ -19,6 +19,21 @@ from typing import Callable
 import numpy as np
 
 
+#: most sessions a batch is split between: on a many-core CPU each gets several threads
+#: instead (64 single-thread sessions would cost 64 copies of the network and their start-up;
+#: the split was measured on 2 cores only)
+MAX_SHARDS = 8
+
+
+def layout(cores: int) -> tuple[int, int]:
+    """(sessions, intra-op threads each) for a batch on ``cores`` cores: one session per
+    core up to :data:`MAX_SHARDS` cores; beyond, the fewest threads per session that keep
+    the sessions at most MAX_SHARDS (64 cores: 8 x 8; 12: 6 x 2)."""
+    cores = max(1, cores)
+    each = -(-cores // MAX_SHARDS)
+    return cores // each, each
+
+
 def usable_cores() -> int:
     """CPUs this process may run on (its affinity mask where the OS has one)."""
     try:
@@ -34,9 +49,10 @@ class Shards:
     Parameters
     ----------
     make : callable
-        Returns a new single-thread ``onnxruntime.InferenceSession`` of the network.
+        Returns a new ``onnxruntime.InferenceSession`` of the network (single-thread, or
+        a few threads each on a many-core CPU: :func:`layout`).
     count : int
-        Number of sessions (>= 2): the cores to use.
+        Number of sessions (>= 2).
     """
 
     def __init__(self, make: Callable[[], "object"], count: int):

@@ -5,7 +5,7 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt.model import X64_QUANT_PRECISION, Model, resolve, session_options
-from diffsampler_rt.shards import Shards, usable_cores
+from diffsampler_rt.shards import MAX_SHARDS, Shards, layout, usable_cores
 
 
 def _session(path, threads):
@@ -65,4 +65,10 @@ def test_default_model_uses_every_usable_core():
     m = diffsampler_rt.load("rank1")
     assert (m._shards is None) == (usable_cores() < 2)
     if m._shards is not None:
-        assert m._shards.count == usable_cores()
+        assert m._shards.count == layout(usable_cores())[0]
+
+
+def test_many_cores_share_a_few_sessions():
+    assert layout(1) == (1, 1) and layout(2) == (2, 1) and layout(MAX_SHARDS) == (MAX_SHARDS, 1)
+    assert layout(64) == (MAX_SHARDS, 64 // MAX_SHARDS)
+    assert layout(12) == (6, 2) and layout(9) == (4, 2)  # 9: one core left out of the split
