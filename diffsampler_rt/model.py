@@ -128,8 +128,8 @@ class Model:
         self.alpha_bar = alphas_cumprod(self.card["schedule"])
         self._threads = threads
         shards, each = layout(usable_cores() if threads is None else threads)
-        self._shards = (Shards(lambda: self._session(session_options(each)), shards)
-                        if shards >= 2 else None)
+        self._shards = (Shards(lambda: self._session(session_options(each, spinning=not quiet)),
+                               shards) if shards >= 2 else None)
         self._guide: Model | None = None
 
     def guide(self) -> "Model | None":

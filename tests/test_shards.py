@@ -72,3 +72,12 @@ def test_many_cores_share_a_few_sessions():
     assert layout(1) == (1, 1) and layout(2) == (2, 1) and layout(MAX_SHARDS) == (MAX_SHARDS, 1)
     assert layout(64) == (MAX_SHARDS, 64 // MAX_SHARDS)
     assert layout(12) == (6, 2) and layout(9) == (4, 2)  # 9: one core left out of the split
+
+
+def test_a_polished_models_shards_do_not_spin():
+    # the polish and a guide take turns with the network on the same cores (Model's notes)
+    m = Model("sot_fast", threads=2)
+    m.generate(64, 2, seed=0)
+    spin = "session.intra_op.allow_spinning"
+    assert [s.get_session_options().get_session_config_entry(spin)
+            for s in m._shards._sessions] == ["0", "0"]
