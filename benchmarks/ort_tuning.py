@@ -68,10 +68,13 @@ def plain(sess, batch: int):
     return lambda: sess.run(["eps"], feed)
 
 
-def sharded(path: str, batch: int):
-    """One single-thread session per core, each on its slice of the batch, side by side:
+def split(path: str) -> Shards:
+    """One single-thread session per core, each on its slice of a batch, side by side:
     the runtime's way (diffsampler_rt.shards)."""
-    shards = Shards(lambda: session(path, threads=1), usable_cores())
+    return Shards(lambda: session(path, threads=1), usable_cores())
+
+
+def sharded(shards: Shards, batch: int):
     feed = inputs(batch)
     return lambda: shards.run(feed["x"], feed["t"])
 
@@ -101,9 +104,10 @@ def main() -> None:
     rows = []
     default = session(path)
     one = session(path, threads=1)
+    shards = split(path)  # its sessions made once, on the first batch
     for batch in (1, 4, 8, 16, 32, 64):
         rows.append((batch, ms_per_set(plain(default, batch), batch, a.repeats),
-                     ms_per_set(sharded(path, batch), batch, a.repeats) if batch >= cores
+                     ms_per_set(sharded(shards, batch), batch, a.repeats) if batch >= cores
                      else float("nan"),
                      ms_per_set(plain(one, batch), batch, a.repeats)))
         print(rows[-1], flush=True)
@@ -112,7 +116,7 @@ def main() -> None:
         float32_file(path, f32)
         quantize(path, q8)  # as the bundled 8-bit models are made
         files = [(label, ms_per_set(plain(session(f), 32), 32, a.repeats),
-                  ms_per_set(sharded(f, 32), 32, a.repeats))
+                  ms_per_set(sharded(split(f), 32), 32, a.repeats))
                  for label, f in (("fp16-stored weights", path), ("float32 weights", f32),
                                   ("8-bit convolutions (`python -m export quantize`)", q8))]
         profile = op_profile(path, 32, tmp)
