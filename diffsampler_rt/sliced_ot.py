@@ -22,6 +22,7 @@ them out in fewer iterations at the same cost.
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
@@ -84,34 +85,99 @@ def square_to_disk(p: np.ndarray) -> np.ndarray:
 BLOCK = 32
 
 
+#: the 16-bit sort packs each key with its point's index in one 32-bit word, so it needs
+#: n <= 2^16; beyond, it sorts the keys indirectly
+PACKED_MAX_N = 1 << 16
+#: the packed sort goes through the sets in chunks of about this many projections (c * m *
+#: n), in buffers kept by each thread (see :func:`_workspace`)
+CHUNK = 1 << 18
+_LOW16 = np.uint32(0xFFFF)
+_local = threading.local()
+
+
 def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.ndarray:
     """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2).
 
-    ``exact=False`` is the polish's cheaper step: it sorts the projections by 16-bit keys
-    (numpy's radix sort, ~5x faster than argsort on floats), so points closer than 2^-15
-    along a direction may swap targets, and works in float32 (half the memory traffic; the
-    keys are far coarser than its rounding)."""
+    ``exact=False`` is the polish's cheaper step: it sorts the projections by 16-bit keys,
+    so points closer than 2^-15 along a direction may swap targets, and works in float32
+    (half the memory traffic; the keys are far coarser than its rounding)."""
     c, n = x.shape[0], x.shape[-2]
     m = theta.shape[-1]
+    if not exact and n <= PACKED_MAX_N:
+        return _packed_displacement(x, theta)
     dtype = np.float64 if exact else np.float32
     target = disk_quantiles(n).astype(dtype, copy=False)
     dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1).astype(dtype)  # (c, m, 2)
-    # matmul, not einsum, and one flat scatter of ranks, not take/put_along_axis: the sort
-    # is then most of the cost
+    # matmul, not einsum, and one flat scatter, not take/put_along_axis: the sort is then
+    # most of the cost
     proj = dirs @ np.swapaxes(x, -1, -2).astype(dtype, copy=False)  # (c, m, n)
     if exact:
         order = np.argsort(proj, axis=-1)
-    else:  # |proj| <= 1 in the disk; in place: np.clip with scalars is slow on new arrays
-        keys = proj + np.float32(1)
-        keys *= np.float32(32767.5)
-        np.clip(keys, 0, 65535, out=keys)
-        order = np.argsort(keys.astype(np.uint16), axis=-1, kind="stable")
+    else:  # numpy's radix sort of 16-bit keys, ~5x faster than argsort on floats
+        order = np.argsort(_keys(proj, proj + np.float32(1)).astype(np.uint16), axis=-1,
+                           kind="stable")
     order += (np.arange(c * m) * n).reshape(c, m, 1)  # indices into the flat rows
-    rank = np.empty(proj.size, dtype=np.intp)
-    rank[order] = np.arange(n)  # broadcast along each row: no (c, m, n) copy of the ranks
-    shift = target[rank].reshape(c, m, n)
+    # each point's target, the quantile of its rank, put where the point is
+    shift = np.empty(proj.shape, dtype=dtype)
+    shift.reshape(-1)[order.reshape(-1)] = np.tile(target, c * m)
     shift -= proj
     return (np.swapaxes(shift, -1, -2) @ dirs).astype(np.float64, copy=False)
+
+
+def _keys(proj: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """16-bit sort keys of projections in [-1, 1], as float32 in [0, 65535] (in ``out``,
+    in place: np.clip with scalars is slow on new arrays)."""
+    np.add(proj, np.float32(1), out=out)
+    out *= np.float32(32767.5)
+    return np.clip(out, 0, 65535, out=out)
+
+
+def _packed_displacement(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """``_displacement(x, theta, exact=False)`` for n <= PACKED_MAX_N, bit for bit, ~2x
+    faster: each key is packed with its point's index (key << 16 | index), so numpy's SIMD
+    sort of the distinct words gives the keys' stable order without argsort, and the work
+    goes through the sets in chunks, in buffers reused from call to call (a new array of a
+    few MiB costs a page fault every 4 KiB: that was half the polish's time)."""
+    c, n = x.shape[0], x.shape[-2]
+    m = theta.shape[-1]
+    sets = max(1, CHUNK // (m * n))  # each set on its own: the chunks do not change a bit
+    work = _workspace(min(c, sets) * m, n)
+    out = np.empty((c, n, 2))
+    for i in range(0, c, sets):
+        th = theta[i:i + sets]
+        cc = len(th)
+        size = cc * m * n
+        dirs = np.stack([np.cos(th), np.sin(th)], axis=-1).astype(np.float32)
+        proj = np.matmul(dirs, np.swapaxes(x[i:i + sets], -1, -2).astype(np.float32),
+                         out=work["proj"][:size].reshape(cc, m, n))
+        shift = work["shift"][:size].reshape(cc, m, n)  # the keys first, then the shifts
+        packed = work["packed"][:size].reshape(cc, m, n)
+        np.copyto(packed, _keys(proj, shift), casting="unsafe")  # exact: whole numbers
+        packed <<= 16
+        packed |= work["index"]
+        packed.sort(axis=-1)
+        packed &= _LOW16
+        order = work["order"][:size].reshape(cc, m, n)
+        np.copyto(order, packed)
+        order += work["rows"][:cc * m].reshape(cc, m, 1)
+        shift.reshape(-1)[order.reshape(-1)] = work["target"][:size]
+        shift -= proj
+        out[i:i + cc] = np.swapaxes(shift, -1, -2) @ dirs
+    return out
+
+
+def _workspace(rows: int, n: int) -> dict[str, np.ndarray]:
+    """This thread's buffers for ``rows`` projections of n points (made or grown on demand,
+    kept between calls; :func:`polish` drops the calling thread's when it ends)."""
+    work = getattr(_local, "work", None)
+    if work is None or work["rows"].size < rows or work["index"].size != n:
+        size = rows * n
+        work = {"proj": np.empty(size, np.float32), "shift": np.empty(size, np.float32),
+                "packed": np.empty(size, np.uint32), "order": np.empty(size, np.intp),
+                "index": np.arange(n, dtype=np.uint32), "rows": np.arange(rows) * n,
+                "target": np.tile(disk_quantiles(n).astype(np.float32), rows)}
+        _local.work = work
+    return work
 
 
 def _blocks(theta: np.ndarray) -> list[np.ndarray]:
@@ -125,7 +191,7 @@ def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | 
 
     The directions go in blocks of :data:`BLOCK`, on ``pool``'s threads if given (numpy's
     sort and matmul release the GIL); the result is the same either way. ``exact=False``
-    sorts each projection by 16-bit keys (2x faster overall; see :func:`polish`)."""
+    sorts each projection by 16-bit keys (4x faster overall; see :func:`polish`)."""
     theta = np.broadcast_to(theta, (x.shape[0],) + np.shape(theta)[-1:])
     blocks = _blocks(theta)
 
@@ -156,7 +222,10 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     direction may swap their targets there. Against the exact sort, 8 iterations of 128
     directions on 1024-point sets move points by 2.5e-5 rms (0.1 % of their spacing) and
     leave the Gaussian integration error as it was. Each step's displacement is computed in
-    float32 (the points stay float64), another ~1.5x.
+    float32 (the points stay float64), another ~1.5x; with n <= 2^16 the keys are sorted
+    packed with their indices, in reused buffers (:func:`_packed_displacement`), another
+    ~2x (1024-point sets, 12 iterations of 128 directions, batch of 32 on 2 cores: 7.4
+    instead of 14.5-16.5 ms a set; the same sets bit for bit).
 
     Examples
     --------
@@ -186,7 +255,10 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     c = len(x)
     w = max(1, (os.cpu_count() or 1) if workers is None else workers)
     if w == 1 or iterations == 0:
-        return disk_to_square(run(slice(None)))
+        try:
+            return disk_to_square(run(slice(None)))
+        finally:  # the workers' buffers go with their threads; this thread's now
+            _local.__dict__.pop("work", None)
     if c < w:  # too few sets to go round: the threads share each iteration's directions
         with ThreadPoolExecutor(min(w, -(-directions // BLOCK))) as pool:
             return disk_to_square(run(slice(None), pool))

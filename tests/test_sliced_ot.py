@@ -206,3 +206,29 @@ def test_the_polish_sorts_by_16_bit_keys_close_to_the_exact_step():
         spacing = np.sqrt(np.pi / n)  # mean point spacing in the disk
         assert np.abs(exact - keyed).max() < 0.02 * spacing
         assert np.sqrt(np.mean((exact - keyed) ** 2)) < 1e-3 * spacing
+
+
+def test_the_packed_sort_gives_the_radix_sorts_step_bit_for_bit(monkeypatch):
+    # the polish's fast path (keys packed with indices, chunks over sets, reused buffers)
+    # against numpy's radix sort of the same 16-bit keys, which runs for n > 2^16
+    rng = np.random.default_rng(11)
+    cases = []
+    for n in (1, 3, 64, 1000, 4096, 64):  # the buffers are remade when n changes
+        x = square_to_disk(rng.random((5, n, 2)))
+        x[:, n // 2:] = x[:, :n - n // 2]  # duplicate points: tied keys keep index order
+        cases.append((x, rng.random((5, 40)) * np.pi))
+    packed = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
+    monkeypatch.setattr(sliced_ot, "CHUNK", 1)  # one set a chunk
+    chunked = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
+    monkeypatch.setattr(sliced_ot, "PACKED_MAX_N", 0)
+    radix = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
+    for a, b, c in zip(packed, chunked, radix):
+        assert a.dtype == np.float64 and np.all(np.isfinite(a))
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, c)
+
+
+def test_the_polish_leaves_no_buffers_on_the_calling_thread():
+    pts = np.random.default_rng(12).random((2, 256, 2))
+    polish(pts, 2, 32, [np.random.default_rng(1), np.random.default_rng(2)], workers=1)
+    assert not hasattr(sliced_ot._local, "work")
