@@ -114,7 +114,7 @@ def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.nd
     if exact:
         order = np.argsort(proj, axis=-1)
     else:  # numpy's radix sort of 16-bit keys, ~5x faster than argsort on floats
-        order = np.argsort(_keys(proj, proj + np.float32(1)).astype(np.uint16), axis=-1,
+        order = np.argsort(_keys(proj, np.empty_like(proj)).astype(np.uint16), axis=-1,
                            kind="stable")
     order += (np.arange(c * m) * n).reshape(c, m, 1)  # indices into the flat rows
     # each point's target, the quantile of its rank, put where the point is
