@@ -21,7 +21,6 @@ them out in fewer iterations at the same cost.
 """
 from __future__ import annotations
 
-import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
@@ -29,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import per_size
+from .shards import usable_cores
 from ._validate import unit_points
 
 #: most directions per iteration a card may ask for (each is a sort of all n points)
@@ -214,9 +214,10 @@ def polish(points: np.ndarray, iterations: int, directions: int,
 
     ``rngs`` gives one generator per set (each iteration's rotation of the evenly spread
     directions), so a set's result does not depend on the others in its batch, nor on
-    ``workers``: the threads (default: one per CPU) that share the sets, or, with fewer
-    sets than threads, each iteration's blocks of directions (a set alone, a big n); numpy's
-    sort releases the GIL, so they run in parallel.
+    ``workers``: the threads (default: one per CPU this process may run on, its affinity
+    mask) that share the sets, or, with fewer sets than threads, each iteration's blocks of
+    directions (a set alone, a big n); numpy's sort releases the GIL, so they run in
+    parallel.
 
     Unlike the sampler, the polish sorts each projection by 16-bit keys (resolution
     2^-15 on the disk's [-1, 1]), which halves its cost: points closer than that along a
@@ -254,7 +255,7 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     if not _step_ok(step):
         raise ValueError(f"step must be a number in (0, {MAX_STEP:g}], got {step!r}")
     c = len(x)
-    w = max(1, (os.cpu_count() or 1) if workers is None else workers)
+    w = max(1, usable_cores() if workers is None else workers)
     if w == 1 or iterations == 0:
         try:
             return disk_to_square(run(slice(None)))

@@ -232,3 +232,21 @@ def test_the_polish_leaves_no_buffers_on_the_calling_thread():
     pts = np.random.default_rng(12).random((2, 256, 2))
     polish(pts, 2, 32, [np.random.default_rng(1), np.random.default_rng(2)], workers=1)
     assert not hasattr(sliced_ot._local, "work")
+
+
+def test_the_polish_counts_the_cpus_it_may_run_on(monkeypatch):
+    """Default workers: the process's affinity mask (as the batch split's sessions), not
+    every CPU of the machine; a one-CPU mask runs on the calling thread, same sets."""
+    pts = np.random.default_rng(13).random((4, 256, 2))
+
+    def rngs():
+        return [np.random.default_rng(i) for i in range(4)]
+
+    want = polish(pts, 2, 32, rngs(), workers=3)
+    monkeypatch.setattr(sliced_ot, "usable_cores", lambda: 1)
+
+    def no_pool(*args, **kwargs):
+        raise AssertionError("a thread pool with one usable CPU")
+
+    monkeypatch.setattr(sliced_ot, "ThreadPoolExecutor", no_pool)
+    np.testing.assert_array_equal(polish(pts, 2, 32, rngs()), want)
