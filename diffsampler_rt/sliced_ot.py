@@ -28,8 +28,8 @@ from functools import lru_cache
 import numpy as np
 
 from . import per_size
-from .shards import usable_cores
 from ._validate import unit_points
+from .shards import usable_cores
 
 #: most directions per iteration a card may ask for (each is a sort of all n points)
 MAX_DIRECTIONS = 1024
