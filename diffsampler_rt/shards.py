@@ -15,6 +15,7 @@ is of the CPUs the OS offers, hardware threads included).
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
@@ -47,6 +48,8 @@ def usable_cores() -> int:
 class Shards:
     """``count`` sessions of one network, made by ``make`` on first use, each running a
     contiguous slice of a batch, in parallel (onnxruntime releases the GIL while it runs).
+    Threads may share one Shards: the sessions are made once, under a lock, and
+    onnxruntime's ``run`` may be called from several threads at a time.
 
     Parameters
     ----------
@@ -64,18 +67,27 @@ class Shards:
         self._make = make
         self._sessions: list = []
         self._pool: ThreadPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def _started(self) -> tuple[list, ThreadPoolExecutor]:
+        """The sessions and the pool, made by the first caller; a caller that comes while
+        they are being made waits for them (two threads would each have made a set of
+        sessions, and one could have seen the sessions before the pool)."""
+        with self._lock:
+            if not self._sessions:
+                sessions = [self._make() for _ in range(self.count)]
+                self._pool = ThreadPoolExecutor(self.count - 1, thread_name_prefix="diffsampler")
+                self._sessions = sessions
+            return self._sessions, self._pool
 
     def run(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
         """eps for the batch ``x`` (B >= ``count``, float32) at timesteps ``t`` (B,)."""
         if len(x) < self.count:
             raise ValueError(f"a batch of {len(x)} cannot feed {self.count} shards")
-        if not self._sessions:
-            self._sessions = [self._make() for _ in range(self.count)]
-            self._pool = ThreadPoolExecutor(self.count - 1, thread_name_prefix="diffsampler")
+        sessions, pool = self._started()
         bounds = np.linspace(0, len(x), self.count + 1).round().astype(int)
         feeds = [{"x": x[a:b], "t": t[a:b]} for a, b in zip(bounds[:-1], bounds[1:])]
         # the calling thread runs the last slice itself
-        futures = [self._pool.submit(s.run, ["eps"], f)
-                   for s, f in zip(self._sessions[:-1], feeds[:-1])]
-        last = self._sessions[-1].run(["eps"], feeds[-1])[0]
+        futures = [pool.submit(s.run, ["eps"], f) for s, f in zip(sessions[:-1], feeds[:-1])]
+        last = sessions[-1].run(["eps"], feeds[-1])[0]
         return np.concatenate([f.result()[0] for f in futures] + [last])

@@ -89,22 +89,46 @@ BLOCK = 32
 #: n <= 2^16; beyond, it sorts the keys indirectly
 PACKED_MAX_N = 1 << 16
 #: the packed sort goes through the sets in chunks of about this many projections (c * m *
-#: n), in buffers kept by each thread (see :func:`_workspace`)
+#: n), in buffers each thread keeps for the length of one polish (see :class:`_Buffers`)
 CHUNK = 1 << 18
 _LOW16 = np.uint32(0xFFFF)
-_local = threading.local()
 
 
-def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True) -> np.ndarray:
+class _Buffers:
+    """Each thread's work arrays for the packed step, kept from step to step for as long as
+    this object lives (a polish; one call of :func:`sliced_step`) and freed with it: made
+    afresh, arrays of a few MiB cost a page fault every 4 KiB, half the polish's time."""
+
+    def __init__(self) -> None:
+        self._by_thread: dict[int, dict[str, np.ndarray]] = {}  # one key per live thread
+
+    def get(self, rows: int, n: int) -> dict[str, np.ndarray]:
+        """The calling thread's buffers for ``rows`` projections of n points (made, or
+        remade larger or for another n, on demand)."""
+        key = threading.get_ident()
+        work = self._by_thread.get(key)
+        if work is None or work["rows"].size < rows or work["index"].size != n:
+            size = rows * n
+            work = {"proj": np.empty(size, np.float32), "shift": np.empty(size, np.float32),
+                    "packed": np.empty(size, np.uint32), "order": np.empty(size, np.intp),
+                    "index": np.arange(n, dtype=np.uint32), "rows": np.arange(rows) * n,
+                    "target": np.tile(disk_quantiles(n).astype(np.float32), rows)}
+            self._by_thread[key] = work
+        return work
+
+
+def _displacement(x: np.ndarray, theta: np.ndarray, exact: bool = True,
+                  buffers: _Buffers | None = None) -> np.ndarray:
     """Sum over the angles theta (c, m) of each point's 1-d optimal displacement (c, n, 2).
 
     ``exact=False`` is the polish's cheaper step: it sorts the projections by 16-bit keys,
     so points closer than 2^-15 along a direction may swap targets, and works in float32
-    (half the memory traffic; the keys are far coarser than its rounding)."""
+    (half the memory traffic; the keys are far coarser than its rounding); its buffers
+    come from ``buffers`` (default: new ones)."""
     c, n = x.shape[0], x.shape[-2]
     m = theta.shape[-1]
     if not exact and n <= PACKED_MAX_N:
-        return _packed_displacement(x, theta)
+        return _packed_displacement(x, theta, _Buffers() if buffers is None else buffers)
     dtype = np.float64 if exact else np.float32
     target = disk_quantiles(n).astype(dtype, copy=False)
     dirs = np.stack([np.cos(theta), np.sin(theta)], axis=-1).astype(dtype)  # (c, m, 2)
@@ -132,16 +156,16 @@ def _keys(proj: np.ndarray, out: np.ndarray) -> np.ndarray:
     return np.clip(out, 0, 65535, out=out)
 
 
-def _packed_displacement(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
+def _packed_displacement(x: np.ndarray, theta: np.ndarray, buffers: _Buffers) -> np.ndarray:
     """``_displacement(x, theta, exact=False)`` for n <= PACKED_MAX_N, bit for bit, ~2x
     faster: each key is packed with its point's index (key << 16 | index), so numpy's SIMD
     sort of the distinct words gives the keys' stable order without argsort, and the work
-    goes through the sets in chunks, in buffers reused from call to call (a new array of a
-    few MiB costs a page fault every 4 KiB: that was half the polish's time)."""
+    goes through the sets in chunks, in ``buffers``, which a polish reuses from step to
+    step."""
     c, n = x.shape[0], x.shape[-2]
     m = theta.shape[-1]
     sets = max(1, CHUNK // (m * n))  # each set on its own: the chunks do not change a bit
-    work = _workspace(min(c, sets) * m, n)
+    work = buffers.get(min(c, sets) * m, n)
     out = np.empty((c, n, 2))
     for i in range(0, c, sets):
         th = theta[i:i + sets]
@@ -166,38 +190,25 @@ def _packed_displacement(x: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return out
 
 
-def _workspace(rows: int, n: int) -> dict[str, np.ndarray]:
-    """This thread's buffers for ``rows`` projections of n points (made or grown on demand,
-    kept between calls; :func:`polish` drops the calling thread's when it ends)."""
-    work = getattr(_local, "work", None)
-    if work is None or work["rows"].size < rows or work["index"].size != n:
-        size = rows * n
-        work = {"proj": np.empty(size, np.float32), "shift": np.empty(size, np.float32),
-                "packed": np.empty(size, np.uint32), "order": np.empty(size, np.intp),
-                "index": np.arange(n, dtype=np.uint32), "rows": np.arange(rows) * n,
-                "target": np.tile(disk_quantiles(n).astype(np.float32), rows)}
-        _local.work = work
-    return work
-
-
 def _blocks(theta: np.ndarray) -> list[np.ndarray]:
     return [theta[:, i:i + BLOCK] for i in range(0, theta.shape[-1], BLOCK)]
 
 
 def sliced_step(x: np.ndarray, theta: np.ndarray, *, pool: ThreadPoolExecutor | None = None,
-                exact: bool = True) -> np.ndarray:
+                exact: bool = True, _buffers: _Buffers | None = None) -> np.ndarray:
     """One SOT iteration on sets x (c, n, 2) in the unit disk along the angles theta (c, m)
     (or (m,), shared): each point moves by the mean of its m 1-d optimal displacements.
 
     The directions go in blocks of :data:`BLOCK`, on ``pool``'s threads if given (numpy's
     sort and matmul release the GIL); the result is the same either way. ``exact=False``
     sorts each projection by 16-bit keys (~3.5x faster than the exact step at n = 1024;
-    see :func:`polish`)."""
+    see :func:`polish`; ``_buffers``: the polish's, kept across its steps)."""
+    buffers = _Buffers() if _buffers is None else _buffers
     theta = np.broadcast_to(theta, (x.shape[0],) + np.shape(theta)[-1:])
     blocks = _blocks(theta)
 
     def part(t: np.ndarray) -> np.ndarray:
-        return _displacement(x, t, exact)
+        return _displacement(x, t, exact, buffers)
 
     parts = pool.map(part, blocks) if pool is not None and len(blocks) > 1 else map(part, blocks)
     total = None
@@ -242,10 +253,13 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     base = np.arange(directions) * (np.pi / directions)
     turns = np.stack([g.random(iterations) for g in rngs]) * (np.pi / directions)  # (c, K)
 
+    buffers = _Buffers()  # each thread's, for every step; freed when the polish returns
+
     def run(part: slice, pool: ThreadPoolExecutor | None = None) -> np.ndarray:
         y = x[part]
         for i in range(iterations):
-            z = sliced_step(y, base[None, :] + turns[part, i:i + 1], pool=pool, exact=False)
+            z = sliced_step(y, base[None, :] + turns[part, i:i + 1], pool=pool, exact=False,
+                            _buffers=buffers)
             y = z if step == 1 else y + step * (z - y)
         return y
 
@@ -257,10 +271,7 @@ def polish(points: np.ndarray, iterations: int, directions: int,
     c = len(x)
     w = max(1, usable_cores() if workers is None else workers)
     if w == 1 or iterations == 0:
-        try:
-            return disk_to_square(run(slice(None)))
-        finally:  # the workers' buffers go with their threads; this thread's now
-            _local.__dict__.pop("work", None)
+        return disk_to_square(run(slice(None)))
     if c < w:  # too few sets to go round: the threads share each iteration's directions
         with ThreadPoolExecutor(min(w, -(-directions // BLOCK))) as pool:
             return disk_to_square(run(slice(None), pool))

@@ -1,4 +1,8 @@
 """A batch split across single-thread sessions, one per core (diffsampler_rt.shards)."""
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -81,3 +85,45 @@ def test_a_polished_models_shards_do_not_spin():
     spin = "session.intra_op.allow_spinning"
     assert [s.get_session_options().get_session_config_entry(spin)
             for s in m._shards._sessions] == ["0", "0"]
+
+
+class _Doubler:
+    """A stand-in session: eps = 2 x."""
+
+    def run(self, names, feed):
+        return [feed["x"] * 2]
+
+
+def test_threads_sharing_shards_make_its_sessions_once():
+    # the first batches of several threads at once: before the lock, each made its own
+    # sessions and one could find the sessions made but not yet the pool
+    made = []
+
+    def make():
+        time.sleep(0.02)  # session start-up: the window the threads met in
+        made.append(threading.get_ident())
+        return _Doubler()
+
+    shards = Shards(make, 3)
+    x = np.arange(6 * 2 * 2 * 2, dtype=np.float32).reshape(6, 2, 2, 2)
+    t = np.zeros(6, np.float32)
+    start = threading.Barrier(4)
+
+    def first_batch(_):
+        start.wait()
+        return shards.run(x, t)
+
+    with ThreadPoolExecutor(4) as callers:
+        outs = list(callers.map(first_batch, range(4)))
+    assert len(made) == 3 and len(set(made)) == 1
+    for out in outs:
+        np.testing.assert_array_equal(out, 2 * x)
+
+
+@pytest.mark.parametrize("name", ["gbn_fast", "sot_fast"])  # sot_fast: the polish's threads too
+def test_threads_sharing_a_model_get_the_sets_they_would_get_alone(name):
+    m = Model(name, threads=2)  # split batches whatever this machine's cores
+    with ThreadPoolExecutor(3) as callers:
+        together = list(callers.map(lambda s: m.generate(256, 4, seed=s), range(3)))
+    for s, got in enumerate(together):
+        np.testing.assert_array_equal(got, Model(name, threads=2).generate(256, 4, seed=s))
