@@ -19,6 +19,10 @@ with windowed (W cells per side) or, with W = 0, global self-attention.
 ``python -m export quantize MODEL.onnx -o OUT.onnx [--sets N] [--seed S]``: the same network
 with 8-bit convolutions, calibrated on its own sampling (about a third less time per
 evaluation on x86 CPUs; measure its fidelity with benchmarks/quantized.py).
+
+``python -m export channels-last-pads MODEL.onnx -o OUT.onnx``: a circular 8-bit file
+quantised before session 70 with its wrap pads copied channels-last (the same outputs bit
+for bit; export/wrap_pad.py).
 """
 from __future__ import annotations
 
@@ -372,8 +376,29 @@ def quantize_main(argv: list[str]) -> int:
     return 0
 
 
+def channels_last_pads_main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m export channels-last-pads",
+                                description="copy a circular 8-bit file's wrap pads "
+                                            "channels-last (exact; export/wrap_pad.py)")
+    p.add_argument("model", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    args = p.parse_args(argv)
+    if _missing(args.model):
+        return 2
+    from .quantize import wrap_pads_to_channels_last
+    try:
+        count = wrap_pads_to_channels_last(args.model, args.output)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.output}; {count} wrap pads now copied channels-last")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["channels-last-pads"]:
+        return channels_last_pads_main(argv[1:])
     if argv[:1] == ["set-defaults"]:
         return set_defaults_main(argv[1:])
     if argv[:1] == ["reexport"]:

@@ -179,8 +179,76 @@ def test_wrap_pads_are_rewritten_exactly(circular_pair):
     # quantize() applied both to the 8-bit file: no wrap Pad left, and its card says so
     assert _wrap_pads(onnx.load(str(q))) == 0
     record = diffsampler_rt.load(q).card["quantization"]
-    assert record["wrap_pads"].endswith("all as Slice and Concat")
+    assert "all as Slice and Concat" in record["wrap_pads"]
     assert "quantization" not in diffsampler_rt.load(f).card
+
+
+def _runtime_run(path, x, t):
+    import onnxruntime as ort
+    from diffsampler_rt.model import session_options
+    sess = ort.InferenceSession(str(path), sess_options=session_options(1),
+                                providers=["CPUExecutionProvider"])
+    return sess.run(["eps"], {"x": x, "t": t})[0]
+
+
+def _channels_last_pads(model) -> int:
+    return sum(n.op_type == "Transpose" and n.name.endswith("_nhwc") for n in model.graph.node)
+
+
+def test_wrap_pads_feeding_8_bit_convolutions_are_copied_channels_last(circular_pair, tmp_path,
+                                                                        monkeypatch):
+    import export.quantize as quantize_module
+    from export.quantize import wrap_pads_to_channels_last
+    from export.wrap_pad import wrap_pads_channels_last
+    f, q = circular_pair
+    count = _channels_last_pads(onnx.load(str(q)))
+    assert count > 0
+    record = diffsampler_rt.load(q).card["quantization"]["wrap_pads"]
+    assert record.endswith(f"all as Slice and Concat; {count} of them copied channels-last")
+    # the same file quantised as before session 70, then rewritten: exactly q's outputs
+    with monkeypatch.context() as patch:
+        patch.setattr(quantize_module, "wrap_pads_channels_last", lambda model: 0)
+        quantize(f, tmp_path / "plain.onnx", sets=2, seed=0)
+    plain = onnx.load(str(tmp_path / "plain.onnx"))
+    assert _channels_last_pads(plain) == 0
+    assert diffsampler_rt.load(tmp_path / "plain.onnx").card["quantization"]["wrap_pads"] == (
+        record.split("; ")[0] + "; all as Slice and Concat")
+    assert wrap_pads_to_channels_last(tmp_path / "plain.onnx", tmp_path / "cl.onnx") == count
+    rewritten = onnx.load(str(tmp_path / "cl.onnx"))
+    onnx.checker.check_model(rewritten)
+    assert diffsampler_rt.load(tmp_path / "cl.onnx").card == diffsampler_rt.load(q).card
+    assert wrap_pads_channels_last(rewritten) == 0  # nothing left to rewrite
+    used = {name for node in rewritten.graph.node for name in node.input}
+    assert {i.name for i in rewritten.graph.initializer} <= used
+    rng = np.random.default_rng(2)
+    for k in (4, 5, 8, 13):
+        x = rng.standard_normal((3, 2, k, k)).astype(np.float32)
+        t = np.array([0.0, 400.0, 999.0], np.float32)
+        want = _runtime_run(tmp_path / "plain.onnx", x, t)
+        np.testing.assert_array_equal(_runtime_run(tmp_path / "cl.onnx", x, t), want)
+        np.testing.assert_array_equal(_runtime_run(q, x, t), want)
+
+
+def test_bundled_circular_8_bit_models_copy_their_pads_channels_last():
+    from export.wrap_pad import wrap_pads_channels_last
+    names = [m for m in diffsampler_rt.list_models()
+             if diffsampler_rt.load(m).card.get("weights") == "int8"
+             and diffsampler_rt.load(m).card["config"]["unet"].get("padding") == "circular"]
+    assert names
+    for name in names:
+        model = onnx.load(str(diffsampler_rt.load(name).path))
+        assert wrap_pads_channels_last(model) == 0, name
+        assert _channels_last_pads(model) > 0, name
+        assert "copied channels-last" in diffsampler_rt.load(name).card["quantization"]["wrap_pads"]
+
+
+def test_channels_last_pads_cli(tiny_onnx, tmp_path, capsys):
+    assert export_main(["channels-last-pads", str(tiny_onnx), "-o", str(tmp_path / "o.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "has no 8-bit convolutions (weights: fp16)" in err
+    assert export_main(["channels-last-pads", str(tmp_path / "none.onnx"), "-o",
+                        str(tmp_path / "o.onnx")]) == 2
+    assert not (tmp_path / "o.onnx").exists()
 
 
 def test_padding_after_quantising_gives_the_same_outputs():
