@@ -105,7 +105,7 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
     from onnxruntime.quantization import (CalibrationDataReader, QuantFormat, QuantType,
                                           quantize_static)
     src, dst = Path(src), Path(dst)
-    source = onnx.load(str(src))
+    source = _load(src)
     meta = {p.key: p.value for p in source.metadata_props}
     card = parse_card(meta, str(src))  # ModelFormatError (a ValueError) names what is wrong
     if card.get("weights") == "int8":
@@ -158,9 +158,8 @@ def wrap_pads_to_channels_last(src: str | Path, dst: str | Path) -> int:
     (:func:`export.wrap_pad.wrap_pads_channels_last`: the same outputs bit for bit, for
     files quantised before session 70); returns how many pads it rewrote (0: ``dst`` is a
     copy). The card's ``quantization.wrap_pads`` says so."""
-    import onnx
     src, dst = Path(src), Path(dst)
-    model = onnx.load(str(src))
+    model = _load(src)
     meta = {p.key: p.value for p in model.metadata_props}
     card = parse_card(meta, str(src))
     if card.get("weights") != "int8":
@@ -172,6 +171,16 @@ def wrap_pads_to_channels_last(src: str | Path, dst: str | Path) -> int:
         card = dict(card, quantization=record)
     _save(model, card, set(meta), dst)
     return count
+
+
+def _load(src: Path):
+    """The ONNX model at ``src``; a ValueError naming it if it is not one."""
+    import onnx
+    try:
+        return onnx.load(str(src))
+    except Exception as exc:  # protobuf's DecodeError and friends
+        raise ValueError(f"{src} is not a readable ONNX model: "
+                         f"{str(exc).splitlines()[0][:200]}") from None
 
 
 def _save(model, card: dict, keys: set[str], dst: Path) -> None:

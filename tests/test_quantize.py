@@ -248,6 +248,13 @@ def test_channels_last_pads_cli(tiny_onnx, tmp_path, capsys):
     assert err.count("\n") == 1 and "has no 8-bit convolutions (weights: fp16)" in err
     assert export_main(["channels-last-pads", str(tmp_path / "none.onnx"), "-o",
                         str(tmp_path / "o.onnx")]) == 2
+    assert "none.onnx not found" in capsys.readouterr().err
+    (tmp_path / "text.onnx").write_text("not a model")
+    for command in ("channels-last-pads", "quantize"):
+        assert export_main([command, str(tmp_path / "text.onnx"), "-o",
+                            str(tmp_path / "o.onnx")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "text.onnx is not a readable ONNX model" in err
     assert not (tmp_path / "o.onnx").exists()
 
 
