@@ -101,16 +101,7 @@ def unroll_wrap_pads(model: onnx.ModelProto) -> int:
                                           name=node.name))
         replaced += 1
         pad_inputs.add(node.input[1])
-    # the replaced Pads' pads constants, where nothing else reads them (onnxruntime warns
-    # about unused initializers at every session start)
-    used = {name for node in nodes for name in node.input}
-    unused = pad_inputs - used
-    nodes = [n for n in nodes if not (n.op_type == "Constant" and n.output[0] in unused)]
-    kept = [i for i in graph.initializer if i.name not in unused]
-    del graph.initializer[:]
-    graph.initializer.extend(kept)
-    del graph.node[:]
-    graph.node.extend(nodes)
+    _set_nodes(graph, nodes, pad_inputs)  # the replaced Pads' pads constants
     return replaced
 
 
@@ -124,10 +115,7 @@ def quantize_before_wrap_pads(model: onnx.ModelProto) -> int:
     returns how many pairs it swapped.
     """
     graph = model.graph
-    consumers: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            consumers.setdefault(name, []).append(node)
+    consumers = _readers(graph)
     outputs = {o.name for o in graph.output}
     initializers = {i.name for i in graph.initializer}
     quant_of: dict[int, onnx.NodeProto] = {}  # id of a moved Pad -> its QuantizeLinear
@@ -172,10 +160,7 @@ def wrap_pads_channels_last(model: onnx.ModelProto) -> int:
     graph = model.graph
     constants = _constant_ints(model)
     made = {n.output[0]: n for n in graph.node}
-    readers: dict[str, list[onnx.NodeProto]] = {}
-    for node in graph.node:
-        for name in node.input:
-            readers.setdefault(name, []).append(node)
+    readers = _readers(graph)
     outputs = {o.name for o in graph.output}
 
     def wrap_along(cat: onnx.NodeProto | None, axis: int) -> str | None:
@@ -244,23 +229,38 @@ def wrap_pads_channels_last(model: onnx.ModelProto) -> int:
             nodes.extend(replaced[node.output[0]])
         elif node.output[0] not in dropped:
             nodes.append(node)
-    del graph.node[:]
-    graph.node.extend(nodes)
+    _set_nodes(graph, nodes, old_axes)  # the old Slices' axes constants
     kept = [v for v in graph.value_info if v.name not in dropped]
     del graph.value_info[:]
     graph.value_info.extend(kept)
-    # the old Slices' axes constants, where nothing else reads them (onnxruntime warns about
-    # unused initializers at every session start)
-    unused = old_axes - {name for node in nodes for name in node.input}
-    kept_init = [i for i in graph.initializer if i.name not in unused]
-    del graph.initializer[:]
-    graph.initializer.extend(kept_init)
     return len(replaced)
 
 
 def channels_last_note(count: int) -> str:
     """What a quantisation record's ``wrap_pads`` adds for ``count`` channels-last pads."""
     return f"; {count} of them copied channels-last" if count else ""
+
+
+def _readers(graph: onnx.GraphProto) -> dict[str, list[onnx.NodeProto]]:
+    """Each tensor name -> the nodes that read it."""
+    readers: dict[str, list[onnx.NodeProto]] = {}
+    for node in graph.node:
+        for name in node.input:
+            readers.setdefault(name, []).append(node)
+    return readers
+
+
+def _set_nodes(graph: onnx.GraphProto, nodes: list[onnx.NodeProto], constants: set[str]) -> None:
+    """Make ``nodes`` the graph's nodes, dropping those of the ``constants`` (initializers
+    or Constant nodes) that nothing reads any more: onnxruntime warns about unused
+    initializers at every session start."""
+    unused = constants - {name for node in nodes for name in node.input}
+    nodes = [n for n in nodes if not (n.op_type == "Constant" and n.output[0] in unused)]
+    kept = [i for i in graph.initializer if i.name not in unused]
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
+    del graph.node[:]
+    graph.node.extend(nodes)
 
 
 def _axis(node: onnx.NodeProto) -> int | None:
