@@ -31,20 +31,30 @@ import sys
 from pathlib import Path
 
 
-def _missing(model: Path) -> bool:
-    """True (after saying so on stderr, for exit status 2) if the model file is not there."""
-    if model.exists():
-        return False
-    print(f"error: model {model} not found", file=sys.stderr)
-    return True
+class UsageError(Exception):
+    """Bad command-line input: :func:`main` prints it as one line and exits with status 2
+    (as it does a ValueError from the functions the commands call)."""
+
+
+def _parser(command: str, description: str, *, output: bool = True) -> argparse.ArgumentParser:
+    """A subcommand's parser with its MODEL argument (and ``-o OUTPUT`` if ``output``)."""
+    p = argparse.ArgumentParser(prog=f"python -m export {command}", description=description)
+    p.add_argument("model", type=Path)
+    if output:
+        p.add_argument("-o", "--output", type=Path, required=True)
+    return p
+
+
+def _require(model: Path) -> None:
+    """UsageError if the model file is not there."""
+    if not model.exists():
+        raise UsageError(f"model {model} not found")
 
 
 def set_defaults_main(argv: list[str]) -> int:
     from diffsampler_rt.solvers import SOLVERS
     from diffsampler_rt.structure import STRUCTURES
-    p = argparse.ArgumentParser(prog="python -m export set-defaults",
-                                description="change the sampling defaults of a model card")
-    p.add_argument("model", type=Path)
+    p = _parser("set-defaults", "change the sampling defaults of a model card", output=False)
     p.add_argument("--solver", choices=list(SOLVERS))
     p.add_argument("--steps", type=int)
     p.add_argument("--structure", choices=list(STRUCTURES) + ["none"],
@@ -102,18 +112,13 @@ def set_defaults_main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     coarse = _gain_arg(args.coarse_noise, args.coarse_noise_cut, "--coarse-noise", 0.25)
     even = _gain_arg(args.even_out, args.even_out_cut, "--even-out", 1.0)
-    if coarse is False or even is False:
-        return 2
     sliced = args.sliced_ot
     for flag, value in (("directions", args.sliced_ot_directions),
                         ("step", args.sliced_ot_step)):
         if value is not None and (sliced is None or sliced == "none"):
-            print(f"error: --sliced-ot-{flag} needs --sliced-ot K or N:K,...", file=sys.stderr)
-            return 2
+            raise UsageError(f"--sliced-ot-{flag} needs --sliced-ot K or N:K,...")
     if sliced is not None and sliced != "none":
         table = _table_arg(sliced, "iterations", _whole, "--sliced-ot", "an integer", "N:K")
-        if table is None:
-            return 2
         # directions and step not given: the card's (set_defaults), else 64 and 1
         sliced = table if isinstance(table, dict) else {"iterations": table}
         if args.sliced_ot_directions is not None:
@@ -125,35 +130,22 @@ def set_defaults_main(argv: list[str]) -> int:
         try:
             sides = [int(v) for v in sides.split(",")]
         except ValueError:
-            print(f"error: --structure-sides must be grid sides separated by commas, got "
-                  f"{sides!r}", file=sys.stderr)
-            return 2
+            raise UsageError(f"--structure-sides must be grid sides separated by commas, got "
+                             f"{sides!r}") from None
     temperature = _number_or_none(args.structure_temperature, "--structure-temperature")
-    if temperature is False:
-        return 2
     block = _block_arg(args.structure_block)
-    if block is False:
-        return 2
     spacing = args.min_spacing
     if spacing is not None and spacing != "none":
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
-        if spacing is None:
-            return 2
     restore = _number_or_none(args.restore_cut, "--restore-cut")
-    if restore is False:
-        return 2
     guide = args.guide
     if args.guide_weight is not None and (guide is None or guide == "none"):
-        print("error: --guide-weight needs --guide NAME", file=sys.stderr)
-        return 2
+        raise UsageError("--guide-weight needs --guide NAME")
     if guide is not None and guide != "none":
         weight = 1.0 if args.guide_weight is None else _table_arg(
             args.guide_weight, "weight", float, "--guide-weight", "a number", "N:W")
-        if weight is None:
-            return 2
         guide = {"model": guide, **(weight if isinstance(weight, dict) else {"weight": weight})}
-    if _missing(args.model):
-        return 2
+    _require(args.model)
     from diffsampler_rt.coarse_noise import describe as describe_coarse
     from diffsampler_rt.guidance import describe as describe_guide
     from diffsampler_rt.low_frequencies import RESTORE_CUT
@@ -162,19 +154,12 @@ def set_defaults_main(argv: list[str]) -> int:
     from diffsampler_rt.spacing import describe as describe_spacing
 
     from .defaults import set_defaults
-    try:
-        card = set_defaults(args.model, solver=args.solver, steps=args.steps,
-                            structure=args.structure,
-                            structure_min_side=args.structure_min_side,
-                            structure_guidance=args.structure_guidance,
-                            structure_sides=sides, structure_temperature=temperature,
-                            structure_block=block,
-                            sliced_ot=sliced,
-                            min_spacing=spacing, coarse_noise=coarse, even_out=even,
-                            restore_cut=restore, guide=guide)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    card = set_defaults(args.model, solver=args.solver, steps=args.steps,
+                        structure=args.structure, structure_min_side=args.structure_min_side,
+                        structure_guidance=args.structure_guidance, structure_sides=sides,
+                        structure_temperature=temperature, structure_block=block,
+                        sliced_ot=sliced, min_spacing=spacing, coarse_noise=coarse,
+                        even_out=even, restore_cut=restore, guide=guide)
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
           f"{card['default_steps']} steps, structure {structure_text(card)}, "
           f"sliced OT {describe_sliced(card.get('sliced_ot'))}, "
@@ -200,42 +185,37 @@ def _gain_table_flags(p: argparse.ArgumentParser, flag: str, gain_help: str,
 
 def _gain_arg(value: str | None, cut: str | None, flag: str, default_cut: float):
     """A card's gain table {"cut": C or a list, "gain": G or "n"/"gain" lists} from
-    ``flag``'s value and its ``-cut`` option, "none", None (not given), or False after an
-    error message."""
+    ``flag``'s value and its ``-cut`` option, or "none" / None (not given) as given
+    (UsageError for a bad value)."""
     if cut is not None and (value is None or value == "none"):
-        print(f"error: {flag}-cut needs {flag} G or N:G,...", file=sys.stderr)
-        return False
+        raise UsageError(f"{flag}-cut needs {flag} G or N:G,...")
     if value is None or value == "none":
         return value
     table = _table_arg(value, "gain", float, flag, "a number", "N:G")
     cuts = default_cut if cut is None else _table_arg(cut, "cut", float, f"{flag}-cut",
                                                       "a number", "N:C")
-    if table is None or cuts is None:
-        return False
     if isinstance(cuts, dict):  # a cut per size: the gain table's sizes, in its order
         if not isinstance(table, dict) or cuts["n"] != table["n"]:
-            print(f"error: {flag}-cut N:C pairs need {flag} N:G pairs at the same sizes, "
-                  f"got {cut!r} for {value!r}", file=sys.stderr)
-            return False
+            raise UsageError(f"{flag}-cut N:C pairs need {flag} N:G pairs at the same sizes, "
+                             f"got {cut!r} for {value!r}")
         cuts = cuts["cut"]
     return {"cut": cuts, **(table if isinstance(table, dict) else {"gain": table})}
 
 
-def _number_or_none(value: str | None, flag: str) -> float | str | None | bool:
-    """A flag's number, ``"none"`` or None (not given) as given, or False after saying on
-    stderr (for exit status 2) that ``flag`` takes a number or none."""
+def _number_or_none(value: str | None, flag: str) -> float | str | None:
+    """A flag's number, or ``"none"`` / None (not given) as given (UsageError: ``flag``
+    takes a number or none)."""
     if value is None or value == "none":
         return value
     try:
         return float(value)
     except ValueError:
-        print(f"error: {flag} must be a number or none, got {value!r}", file=sys.stderr)
-        return False
+        raise UsageError(f"{flag} must be a number or none, got {value!r}") from None
 
 
-def _block_arg(value: str | None) -> int | dict | str | None | bool:
+def _block_arg(value: str | None) -> int | dict | str | None:
     """--structure-block's B (every side) or K:B pairs (per grid side: {"sides", "block"}),
-    "none" or None as given, or False after saying on stderr what it takes."""
+    or "none" / None as given (UsageError: what it takes)."""
     if value is None or value == "none":
         return value
     try:
@@ -246,9 +226,8 @@ def _block_arg(value: str | None) -> int | dict | str | None | bool:
             raise ValueError(value)
         return {"sides": [p[0] for p in pairs], "block": [p[1] for p in pairs]}
     except ValueError:
-        print(f"error: --structure-block must be an integer, K:B pairs separated by commas, "
-              f"or none, got {value!r}", file=sys.stderr)
-        return False
+        raise UsageError(f"--structure-block must be an integer, K:B pairs separated by "
+                         f"commas, or none, got {value!r}") from None
 
 
 def structure_text(card: dict) -> str:
@@ -270,14 +249,12 @@ def structure_text(card: dict) -> str:
 
 
 def _table_arg(text: str, key: str, value, flag: str, one: str, pairs: str):
-    """:func:`parse_table` of a flag's value, or None after saying on stderr (for exit
-    status 2) what ``flag`` takes."""
+    """:func:`parse_table` of a flag's value (UsageError: what ``flag`` takes)."""
     try:
         return parse_table(text, key, value)
     except ValueError:
-        print(f"error: {flag} must be {one}, {pairs} pairs separated by commas, or none, "
-              f"got {text!r}", file=sys.stderr)
-        return None
+        raise UsageError(f"{flag} must be {one}, {pairs} pairs separated by commas, or none, "
+                         f"got {text!r}") from None
 
 
 def parse_table(text: str, key: str, value=float):
@@ -300,76 +277,46 @@ def _whole(text: str) -> int:
 
 
 def density_floor_main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m export density-floor",
-                                description="re-tabulate a non-uniform model's density with "
-                                            "another floor")
-    p.add_argument("model", type=Path)
+    p = _parser("density-floor", "re-tabulate a non-uniform model's density with another "
+                                 "floor", output=False)
     p.add_argument("--floor", type=float, required=True,
                    help="mass added to every cell, a fraction of the mean cell mass, in (0, 1)")
     args = p.parse_args(argv)
-    if _missing(args.model):
-        return 2
+    _require(args.model)
     from .defaults import set_density_floor
-    try:
-        card = set_density_floor(args.model, args.floor)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    card = set_density_floor(args.model, args.floor)
     print(f"{args.model}: density table ({len(card['density']['x_cdf']) - 1} bins) now has "
           f"floor {card['density_floor']:g}")
     return 0
 
 
 def reexport_main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m export reexport",
-                                description="re-export a model with another attention window")
-    p.add_argument("model", type=Path)
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p = _parser("reexport", "re-export a model with another attention window")
     p.add_argument("--attention-window", type=int, required=True,
                    help="cells per window side; 0 for global attention")
     args = p.parse_args(argv)
-    if _missing(args.model):
-        return 2
+    _require(args.model)
     if args.attention_window < 0:
-        print(f"error: --attention-window must be >= 0, got {args.attention_window}",
-              file=sys.stderr)
-        return 2
+        raise UsageError(f"--attention-window must be >= 0, got {args.attention_window}")
     import torch
     torch.set_num_threads(2)
-    from . import ParityError
     from .reexport import reexport
-    try:
-        out, diffs = reexport(args.model, args.output,
-                              attention_window=args.attention_window or None)
-    except ParityError as exc:
-        print(f"parity check FAILED: {exc}", file=sys.stderr)
-        return 1
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    out, diffs = reexport(args.model, args.output, attention_window=args.attention_window or None)
     print(f"wrote {out} ({out.stat().st_size / 2**20:.2f} MiB); parity max|diff| "
           + ", ".join(f"k={k}: {d:.2g}" for k, d in diffs.items()))
     return 0
 
 
 def quantize_main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m export quantize",
-                                description="8-bit convolutions, calibrated on the model's "
-                                            "own sampling (export/quantize.py)")
-    p.add_argument("model", type=Path)
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p = _parser("quantize", "8-bit convolutions, calibrated on the model's own sampling "
+                            "(export/quantize.py)")
     p.add_argument("--sets", type=int, default=8,
                    help="calibration sets generated per trained grid side (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the calibration sets")
     args = p.parse_args(argv)
-    if _missing(args.model):
-        return 2
+    _require(args.model)
     from .quantize import quantize
-    try:
-        card = quantize(args.model, args.output, sets=args.sets, seed=args.seed)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    card = quantize(args.model, args.output, sets=args.sets, seed=args.seed)
     q = card["quantization"]
     print(f"wrote {args.output} ({args.output.stat().st_size / 2**20:.2f} MiB); calibrated on "
           f"{q['feeds']} solver inputs at grid sides {', '.join(map(str, q['sides']))}")
@@ -377,36 +324,17 @@ def quantize_main(argv: list[str]) -> int:
 
 
 def channels_last_pads_main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m export channels-last-pads",
-                                description="copy a circular 8-bit file's wrap pads "
-                                            "channels-last (exact; export/wrap_pad.py)")
-    p.add_argument("model", type=Path)
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p = _parser("channels-last-pads", "copy a circular 8-bit file's wrap pads channels-last "
+                                      "(exact; export/wrap_pad.py)")
     args = p.parse_args(argv)
-    if _missing(args.model):
-        return 2
+    _require(args.model)
     from .quantize import wrap_pads_to_channels_last
-    try:
-        count = wrap_pads_to_channels_last(args.model, args.output)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    count = wrap_pads_to_channels_last(args.model, args.output)
     print(f"wrote {args.output}; {count} wrap pads now copied channels-last")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["channels-last-pads"]:
-        return channels_last_pads_main(argv[1:])
-    if argv[:1] == ["set-defaults"]:
-        return set_defaults_main(argv[1:])
-    if argv[:1] == ["reexport"]:
-        return reexport_main(argv[1:])
-    if argv[:1] == ["density-floor"]:
-        return density_floor_main(argv[1:])
-    if argv[:1] == ["quantize"]:
-        return quantize_main(argv[1:])
+def export_main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m export", description=__doc__)
     p.add_argument("checkpoint", type=Path, help="runs/<name>/checkpoint.pt")
     p.add_argument("-o", "--output", type=Path, required=True)
@@ -415,22 +343,37 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sides", type=int, nargs="*", default=[8, 24, 25, 32, 64])
     args = p.parse_args(argv)
     if not args.checkpoint.exists():
-        print(f"error: checkpoint {args.checkpoint} not found", file=sys.stderr)
-        return 2
+        raise UsageError(f"checkpoint {args.checkpoint} not found")
     import torch
     torch.set_num_threads(2)
-    from . import ParityError, export_checkpoint
-    try:
-        out, diffs = export_checkpoint(args.checkpoint, args.output,
-                                       fp16_weights=not args.fp32,
-                                       parity_sides=tuple(args.sides), tolerance=args.tolerance)
-    except ParityError as exc:
-        print(f"parity check FAILED: {exc}", file=sys.stderr)
-        return 1
+    from . import export_checkpoint
+    out, diffs = export_checkpoint(args.checkpoint, args.output, fp16_weights=not args.fp32,
+                                   parity_sides=tuple(args.sides), tolerance=args.tolerance)
     size = out.stat().st_size / 2**20
     print(f"wrote {out} ({size:.2f} MiB); parity max|diff| "
           + ", ".join(f"k={k}: {d:.2g}" for k, d in diffs.items()))
     return 0
+
+
+COMMANDS = {"set-defaults": set_defaults_main, "density-floor": density_floor_main,
+            "reexport": reexport_main, "quantize": quantize_main,
+            "channels-last-pads": channels_last_pads_main}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run a subcommand (or, without one, the export of a checkpoint): exit status 0, 1 if
+    an export's parity check fails, 2 with a one-line error for bad input."""
+    from . import ParityError
+    argv = sys.argv[1:] if argv is None else argv
+    command = COMMANDS.get(argv[0]) if argv else None
+    try:
+        return command(argv[1:]) if command else export_main(argv)
+    except ParityError as exc:
+        print(f"parity check FAILED: {exc}", file=sys.stderr)
+        return 1
+    except (UsageError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
