@@ -1,7 +1,7 @@
 """``diffsampler``: generate point sets from the command line.
 
     diffsampler generate MODEL N [--count C] [--seed S] [--steps T] [--no-structure]
-                             [--format txt|npy|csv] [-o FILE]
+                             [--format txt|npy|csv] [-o FILE] [--threads K]
     diffsampler plot MODEL N [--count C] [--seed S] -o FIG.png   (or: plot POINTS.npy -o FIG.png)
     diffsampler list
     diffsampler info MODEL
@@ -16,7 +16,7 @@ import os
 import sys
 import warnings
 from pathlib import Path
-from typing import IO
+from typing import IO, Iterable
 
 import numpy as np
 
@@ -35,25 +35,39 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _write(points: np.ndarray, fmt: str, out: IO[bytes]) -> None:
-    """txt: 'x y' per line, sets separated by a blank line; csv: header set,x,y; npy: array."""
+def _write(blocks: Iterable[np.ndarray], shape: tuple[int, ...], fmt: str,
+           out: IO[bytes]) -> None:
+    """Write the sets of ``blocks`` ((b, n, 2) arrays, ``shape`` in all) as they come, so
+    that a large count never sits in memory whole. txt: 'x y' per line, sets separated by a
+    blank line; csv: header set,x,y; npy: one array of ``shape``, as np.save writes it."""
     if fmt == "npy":
-        np.save(out, points)
+        np.lib.format.write_array_header_1_0(
+            out, {"descr": np.lib.format.dtype_to_descr(np.dtype("<f8")),
+                  "fortran_order": False, "shape": shape})
+        for block in blocks:
+            out.write(np.ascontiguousarray(block, dtype="<f8").tobytes())
         return
-    sets = points.reshape((-1,) + points.shape[-2:])
     if fmt == "csv":
         out.write(b"set,x,y\n")
-    for i, pts in enumerate(sets):
-        if fmt == "txt":
-            if i:
-                out.write(b"\n")
-            out.write("".join(f"{x!r} {y!r}\n" for x, y in pts.tolist()).encode())
-        else:
-            out.write("".join(f"{i},{x!r},{y!r}\n" for x, y in pts.tolist()).encode())
+    i = 0
+    for block in blocks:
+        for pts in block:
+            if fmt == "txt":
+                if i:
+                    out.write(b"\n")
+                out.write("".join(f"{x!r} {y!r}\n" for x, y in pts.tolist()).encode())
+            else:
+                out.write("".join(f"{i},{x!r},{y!r}\n" for x, y in pts.tolist()).encode())
+            i += 1
+
+
+def _model(name: str, threads: int | None):
+    """The loaded model (cached), or a model of its own with ``threads`` cores."""
+    from .model import Model, load
+    return load(name) if threads is None else Model(name, threads=threads)
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
-    from .model import load
     fmt = args.format
     if fmt is None:
         suffix = args.output.suffix.lstrip(".").lower() if args.output else ""
@@ -62,16 +76,27 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         # checked before the (possibly long) generation, not after it
         raise ValueError("refusing to write binary .npy data to a terminal; give -o FILE.npy "
                          "or redirect stdout")
-    model = load(args.model)
+    model = _model(args.model, args.threads)
     show = args.count is not None and args.count > 1 and sys.stderr.isatty()
-    pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,
-                         solver=args.solver, progress=show, structure=not args.no_structure)
+    # the sets block by block (the same sets as generate's); bad arguments fail here,
+    # before any output
+    blocks = model.iter_sets(args.n, 1 if args.count is None else args.count, seed=args.seed,
+                             steps=args.steps, solver=args.solver, progress=show,
+                             structure=not args.no_structure)
+    shape = (args.n, 2) if args.count is None else (args.count, args.n, 2)
     if args.output is None:
-        _write(pts, fmt, sys.stdout.buffer)
+        _write(blocks, shape, fmt, sys.stdout.buffer)
         sys.stdout.flush()
-    else:
-        with open(args.output, "wb") as fh:
-            _write(pts, fmt, fh)
+        return
+    # written beside the file and renamed at the end: an interrupted run leaves no
+    # truncated file under the name asked for
+    partial = args.output.with_name(args.output.name + ".partial")
+    try:
+        with open(partial, "wb") as fh:
+            _write(blocks, shape, fmt, fh)
+        os.replace(partial, args.output)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def _cmd_plot(args: argparse.Namespace) -> None:
@@ -82,10 +107,9 @@ def _cmd_plot(args: argparse.Namespace) -> None:
         pts = np.load(args.source)
         title = Path(args.source).stem
     else:
-        from .model import load
         if args.n is None:
             raise ValueError("plotting a model needs N, the number of points per set")
-        model = load(args.source)
+        model = _model(args.source, args.threads)
         pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,
                              solver=args.solver)
         title = model.name
@@ -145,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
+    g.add_argument("--threads", type=int, default=None,
+                   help="cores to use (default: every core this process may run on)")
     g.set_defaults(func=_cmd_generate)
     pl = sub.add_parser("plot", help="points, 2-d and radial power spectrum as a figure")
     pl.add_argument("source", help="bundled model name, .onnx path, or a .npy file of points")
@@ -155,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     pl.add_argument("--solver", default=None, choices=list(SOLVERS),
                     help="default: the model card's")
     pl.add_argument("-o", "--output", type=Path, required=True, help=".png, .pdf or .svg")
+    pl.add_argument("--threads", type=int, default=None,
+                    help="cores to use (default: every core this process may run on)")
     pl.set_defaults(func=_cmd_plot)
     lst = sub.add_parser("list", help="list the bundled models")
     lst.set_defaults(func=_cmd_list)

@@ -119,3 +119,62 @@ def test_warnings_are_one_line(capsys):
     err = capsys.readouterr().err
     assert err.startswith("diffsampler: warning: model 'gbn_fast' was distilled for ddim")
     assert len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("fmt", ["npy", "txt", "csv"])
+def test_generate_streams_block_by_block(tmp_path, monkeypatch, fmt):
+    # 64 points a block: 10 sets of 16 points come in 3 blocks, written as they come; the
+    # file is the one a whole-array write of generate's sets gives, byte for byte
+    import diffsampler_rt.model as model
+    monkeypatch.setattr(model, "POINTS_PER_BATCH", 64)
+    calls = []
+    real = model.Model.iter_sets
+
+    def spy(self, *a, **k):
+        for block in real(self, *a, **k):
+            calls.append(len(block))
+            yield block
+
+    monkeypatch.setattr(model.Model, "iter_sets", spy)
+    out = tmp_path / f"pts.{fmt}"
+    assert main(["generate", "sobol_owen", "16", "--count", "10", "--seed", "2", "--steps", "3",
+                 "-o", str(out)]) == 0
+    assert calls == [4, 4, 2]
+    ref = model.generate("sobol_owen", 16, count=10, seed=2, steps=3)
+    if fmt == "npy":
+        import io
+        whole = io.BytesIO()
+        np.save(whole, ref)
+        assert out.read_bytes() == whole.getvalue()
+    elif fmt == "txt":
+        np.testing.assert_array_equal(np.loadtxt(out).reshape(10, 16, 2), ref)
+        assert out.read_text().count("\n\n") == 9  # a blank line between sets
+    else:
+        raw = np.loadtxt(out, delimiter=",", skiprows=1)
+        assert np.array_equal(raw[:, 0], np.repeat(np.arange(10), 16))
+        np.testing.assert_array_equal(raw[:, 1:].reshape(10, 16, 2), ref)
+    assert not (tmp_path / f"pts.{fmt}.partial").exists()
+
+
+def test_an_interrupted_generate_leaves_no_file(tmp_path, monkeypatch):
+    import diffsampler_rt.model as model
+
+    def failing(self, *a, **k):
+        yield np.zeros((1, 16, 2))
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(model.Model, "iter_sets", failing)
+    out = tmp_path / "pts.npy"
+    assert main(["generate", "sobol_owen", "16", "--count", "4", "-o", str(out)]) == 2
+    assert list(tmp_path.iterdir()) == []  # neither the file nor its .partial
+
+
+def test_generate_threads(tmp_path, capsys):
+    out = tmp_path / "pts.npy"
+    assert main(["generate", "gbn_fast", "64", "--count", "3", "--seed", "5", "--threads", "1",
+                 "-o", str(out)]) == 0
+    np.testing.assert_array_equal(np.load(out), __import__("diffsampler_rt").generate(
+        "gbn_fast", 64, count=3, seed=5))
+    assert main(["generate", "gbn_fast", "64", "--threads", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "threads must be >= 1, got 0" in err[0]
