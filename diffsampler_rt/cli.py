@@ -146,6 +146,16 @@ def _cmd_info(args: argparse.Namespace) -> None:
     print(json.dumps(card, indent=2, sort_keys=True))
 
 
+def _add_sampling_options(parser: argparse.ArgumentParser) -> None:
+    """The options `generate` and `plot` share: how the sets are drawn."""
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--steps", type=int, default=None, help="denoising steps")
+    parser.add_argument("--solver", default=None, choices=list(SOLVERS),
+                        help="default: the model card's")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="cores to use (default: every core this process may run on)")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = _Parser(prog="diffsampler", description="Generate 2-d point sets with learned samplers.")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
@@ -154,10 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("n", type=int, help="points per set, >= 16 (a perfect square k*k is the "
                    "net's own size; other n are thinned from the next square)")
     g.add_argument("--count", type=int, default=None, help="number of sets (default 1)")
-    g.add_argument("--seed", type=int, default=None)
-    g.add_argument("--steps", type=int, default=None, help="denoising steps")
-    g.add_argument("--solver", default=None, choices=list(SOLVERS),
-                   help="default: the model card's")
+    _add_sampling_options(g)
     g.add_argument("--no-structure", action="store_true",
                    help="return the network's sets as decoded: no net, n-rooks or lattice "
                         "structure (sobol_owen, ldbn, rank1, lattice), no sliced-OT polish "
@@ -169,20 +176,13 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
-    g.add_argument("--threads", type=int, default=None,
-                   help="cores to use (default: every core this process may run on)")
     g.set_defaults(func=_cmd_generate)
     pl = sub.add_parser("plot", help="points, 2-d and radial power spectrum as a figure")
     pl.add_argument("source", help="bundled model name, .onnx path, or a .npy file of points")
     pl.add_argument("n", type=int, nargs="?", default=None, help="points per set (models)")
     pl.add_argument("--count", type=int, default=16, help="sets averaged in the spectra")
-    pl.add_argument("--seed", type=int, default=None)
-    pl.add_argument("--steps", type=int, default=None)
-    pl.add_argument("--solver", default=None, choices=list(SOLVERS),
-                    help="default: the model card's")
+    _add_sampling_options(pl)
     pl.add_argument("-o", "--output", type=Path, required=True, help=".png, .pdf or .svg")
-    pl.add_argument("--threads", type=int, default=None,
-                    help="cores to use (default: every core this process may run on)")
     pl.set_defaults(func=_cmd_plot)
     lst = sub.add_parser("list", help="list the bundled models")
     lst.set_defaults(func=_cmd_list)
