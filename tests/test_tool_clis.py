@@ -57,6 +57,19 @@ def test_train_then_export_from_the_command_line(tmp_path):
     assert m.generate(64, seed=0, steps=2).shape == (64, 2)
 
 
+def test_train_fp32_overrides_the_configs_bf16(tmp_path, recwarn):
+    cfg_path = tmp_path / "tiny.json"
+    cfg_path.write_text(json.dumps(replace(tiny_config(), steps=2, bf16=True).to_dict()))
+    run = tmp_path / "run"
+    args = ["train", str(cfg_path), "--run-dir", str(run), "--no-progress"]
+    assert trainer_main(args + ["--fp32"]) == 0
+    from trainer.train import load_checkpoint
+    assert load_checkpoint(run / "checkpoint.pt")["config"]["bf16"] is False
+    assert not any("bf16" in str(w.message) for w in recwarn)
+    # the run records float32, so resuming it as the bf16 recipe is refused
+    assert trainer_main(args + ["--steps", "3"]) == 2
+
+
 def test_export_missing_checkpoint(tmp_path):
     res = subprocess.run([sys.executable, "-m", "export", str(tmp_path / "none.pt"), "-o",
                           str(tmp_path / "x.onnx")], capture_output=True, text=True, cwd=ROOT)

@@ -1,4 +1,5 @@
 import csv
+import warnings
 
 import pytest
 
@@ -164,8 +165,34 @@ def test_second_stage_may_add_coordinate_bits(tiny_onnx, tmp_path):
 def test_bf16_autocast_trains(tmp_path):
     from dataclasses import replace
     cfg = replace(tiny_config(), bf16=True, steps=3)
-    tr = Trainer(cfg, tmp_path, progress=False)
+    with warnings.catch_warnings():  # this CPU may lack native bf16 (tested below)
+        warnings.simplefilter("ignore")
+        tr = Trainer(cfg, tmp_path, progress=False)
     tr.run()
     assert tr.step == 3
     assert all(p.dtype == torch.float32 and torch.isfinite(p).all()
                for p in tr.model.parameters())
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_bf16_on_a_cpu_without_it_warns(tmp_path, monkeypatch, native):
+    """Emulated bf16 autocast is ~16-20x slower than float32: say so, and how to avoid it."""
+    from dataclasses import replace
+
+    import trainer.train
+    monkeypatch.setattr(trainer.train, "native_bf16", lambda device: native)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        Trainer(replace(tiny_config(), bf16=True), tmp_path / "a", progress=False)
+        Trainer(tiny_config(), tmp_path / "b", progress=False)  # float32: never a warning
+    messages = [str(w.message) for w in caught]
+    if native:
+        assert not any("bf16" in m for m in messages)
+    else:
+        assert sum("bf16" in m for m in messages) == 1
+        assert "'tiny'" in messages[0] and "--fp32" in messages[0]
+
+
+def test_native_bf16_answers():
+    from trainer.train import native_bf16
+    assert isinstance(native_bf16(torch.device("cpu")), bool)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     _run_options(t, "default: runs/<config file name without .json>")
     t.add_argument("--workers", type=int, default=1,
                    help="processes that build the slow samplers' pools (same pools for any)")
+    t.add_argument("--fp32", action="store_true",
+                   help="train in float32 where the config asks for bf16 autocast (for CPUs "
+                        "without avx512_bf16 or AMX, where autocast is emulated and ~16-20x "
+                        "slower); the run records bf16 false, so a resume needs --fp32 too")
 
     d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
@@ -162,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
             from .config import TrainConfig
             from .train import Trainer
             cfg = TrainConfig.load(args.config)
+            if args.fp32:
+                cfg = replace(cfg, bf16=False)
             run_dir = args.run_dir or Path("runs") / args.config.stem
             tr = Trainer(cfg, run_dir, progress=not args.no_progress, device=args.device,
                          workers=args.workers)

@@ -80,7 +80,8 @@ class TrainConfig:
     seed: int = 0
     threads: int = 1
     #: bfloat16 autocast for forward/backward (weights, optimiser and EMA stay float32):
-    #: ~1.6x faster per step on this CPU (avx512_bf16)
+    #: ~1.6x faster per step on a CPU with avx512_bf16; emulated and 16-20x slower without
+    #: (the trainer warns; `python -m trainer train --fp32` overrides it)
     bf16: bool = False
     checkpoint_every_s: float = 180.0
     log_every: int = 10
