@@ -43,7 +43,7 @@ from diffsampler_rt.solvers import SOLVERS, solve
 from .data import cache_dir
 from .density import OLD_FLOOR
 from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
-                    run_loop, save_checkpoint)
+                    run_loop)
 from .unet import UNet
 from .warm_start import net_from_onnx
 
@@ -337,11 +337,6 @@ class Distiller:
     def _restore(self, st: dict[str, Any]) -> None:
         restore_state(self, st, same_config=st.get("distil_config") == self.cfg.to_dict(),
                       devices=st.get("student_devices", ["cpu"]))
-
-    def save(self) -> Path:
-        path = self.run_dir / CHECKPOINT
-        save_checkpoint(path, self.state())
-        return path
 
     def train_step(self) -> list[float]:
         """One optimiser step on one batch of hops per grid size; returns the loss per size."""

@@ -145,11 +145,6 @@ class Trainer:
                       devices=st.get("devices", ["cpu"]))
         self.rng.bit_generator.state = st["rng"]
 
-    def save(self) -> Path:
-        path = self.run_dir / CHECKPOINT
-        save_checkpoint(path, self.state())
-        return path
-
     def train_step(self) -> list[float]:
         """One optimiser step on one batch per grid size; returns the loss per size."""
         def losses():
@@ -203,13 +198,20 @@ def optimiser_step(runner: Any, losses: Iterable[torch.Tensor]) -> list[float]:
     return values
 
 
+def save_run(runner: Any) -> Path:
+    """Checkpoint :class:`Trainer` or :class:`trainer.distil.Distiller` in its run directory."""
+    path = runner.run_dir / CHECKPOINT
+    save_checkpoint(path, runner.state())
+    return path
+
+
 def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
              until_step: int | None = None, max_seconds: float | None = None) -> Path:
     """The step loop of :class:`Trainer` and :class:`trainer.distil.Distiller`.
 
     ``runner`` has ``cfg`` (steps, lr schedule, log_every, checkpoint_every_s), ``run_dir``,
     ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns the loss per grid size)
-    and ``save()``. Logs to ``run_dir/log.csv``, checkpoints every few minutes and at the end.
+    and ``state()`` (what its checkpoint holds). Logs to ``run_dir/log.csv``, checkpoints every few minutes and at the end.
     """
     cfg = runner.cfg
     until = cfg.steps if until_step is None else min(until_step, cfg.steps)
@@ -238,10 +240,10 @@ def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
                 bar.set_postfix(loss=f"{sum(losses):.4g}")
             now = time.monotonic()
             if now - last_ckpt >= cfg.checkpoint_every_s:
-                runner.save()
+                save_run(runner)
                 last_ckpt = now
             if max_seconds is not None and now - start >= max_seconds:
                 break
     if bar is not None:
         bar.close()
-    return runner.save()
+    return save_run(runner)
