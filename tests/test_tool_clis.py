@@ -57,17 +57,24 @@ def test_train_then_export_from_the_command_line(tmp_path):
     assert m.generate(64, seed=0, steps=2).shape == (64, 2)
 
 
-def test_train_fp32_overrides_the_configs_bf16(tmp_path, recwarn):
+def test_train_fp32_overrides_the_configs_bf16(tmp_path, monkeypatch, capsys):
+    import trainer.train
+    monkeypatch.setattr(trainer.train, "native_bf16", lambda device: False)
     cfg_path = tmp_path / "tiny.json"
     cfg_path.write_text(json.dumps(replace(tiny_config(), steps=2, bf16=True).to_dict()))
-    run = tmp_path / "run"
-    args = ["train", str(cfg_path), "--run-dir", str(run), "--no-progress"]
-    assert trainer_main(args + ["--fp32"]) == 0
+    args = ["train", str(cfg_path), "--no-progress", "--steps", "1", "--run-dir"]
+    assert trainer_main(args + [str(tmp_path / "bf16")]) == 0
+    err = capsys.readouterr().err.splitlines()  # the warning: one line, as errors are
+    assert len(err) == 1 and err[0].startswith("warning: config 'tiny' asks for bf16")
+    assert "--fp32" in err[0]
+    run = tmp_path / "fp32"
+    assert trainer_main(args + [str(run), "--fp32"]) == 0
+    assert "bf16" not in capsys.readouterr().err
     from trainer.train import load_checkpoint
     assert load_checkpoint(run / "checkpoint.pt")["config"]["bf16"] is False
-    assert not any("bf16" in str(w.message) for w in recwarn)
     # the run records float32, so resuming it as the bf16 recipe is refused
-    assert trainer_main(args + ["--steps", "3"]) == 2
+    assert trainer_main(args + [str(run)]) == 2
+    assert "different config" in capsys.readouterr().err
 
 
 def test_export_missing_checkpoint(tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -24,6 +25,11 @@ def _save_points(points: np.ndarray, path: Path) -> None:
                 np.savetxt(fh, pts, fmt="%.17g", delimiter=sep)
     else:
         raise ValueError(f"unknown output format {suffix!r}; use .npy, .txt or .csv")
+
+
+def _warn_one_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line on stderr, like the errors (not Python's file:line form)."""
+    print(f"warning: {message}", file=sys.stderr)
 
 
 def _optimise(args: argparse.Namespace) -> None:
@@ -163,47 +169,54 @@ def main(argv: list[str] | None = None) -> int:
 
     args = p.parse_args(argv)
     try:
-        if args.cmd == "train":
-            from .config import TrainConfig
-            from .train import Trainer
-            cfg = TrainConfig.load(args.config)
-            if args.fp32:
-                cfg = replace(cfg, bf16=False)
-            run_dir = args.run_dir or Path("runs") / args.config.stem
-            tr = Trainer(cfg, run_dir, progress=not args.no_progress, device=args.device,
-                         workers=args.workers)
-            path = tr.run(until_step=args.steps,
-                          max_seconds=None if args.minutes is None else 60 * args.minutes)
-            print(f"step {tr.step}: checkpoint {path}")
-        elif args.cmd == "distil":
-            from .distil import DistilConfig, Distiller
-            dcfg = DistilConfig.load(args.config)
-            dist = Distiller(dcfg, args.run_dir or Path("runs") / args.config.stem,
-                             progress=not args.no_progress, device=args.device)
-            path = dist.run(until_step=args.steps,
-                            max_seconds=None if args.minutes is None else 60 * args.minutes)
-            print(f"step {dist.step}: checkpoint {path}")
-        elif args.cmd == "prepare":
-            from .config import TrainConfig
-            from .data import Batches
-            cfg = TrainConfig.load(args.config)
-            pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(),
-                            workers=args.workers).pools
-            for k, pool in pools.items():
-                print(f"{cfg.name}: k={k} pool {pool.shape}")
-        elif args.cmd == "spacing":
-            _spacing(args)
-        elif args.cmd == "optimise":
-            _optimise(args)
-        else:
-            from .samplers import sample
-            pts = sample(args.name, args.n, count=args.count, seed=args.seed,
-                         progress=sys.stderr.isatty(), workers=args.workers)
-            _save_points(pts, args.output)
+        with warnings.catch_warnings():  # restores the caller's showwarning afterwards
+            warnings.showwarning = _warn_one_line
+            _run(args)
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _run(args: argparse.Namespace) -> None:
+    """The chosen subcommand."""
+    if args.cmd == "train":
+        from .config import TrainConfig
+        from .train import Trainer
+        cfg = TrainConfig.load(args.config)
+        if args.fp32:
+            cfg = replace(cfg, bf16=False)
+        run_dir = args.run_dir or Path("runs") / args.config.stem
+        tr = Trainer(cfg, run_dir, progress=not args.no_progress, device=args.device,
+                     workers=args.workers)
+        path = tr.run(until_step=args.steps,
+                      max_seconds=None if args.minutes is None else 60 * args.minutes)
+        print(f"step {tr.step}: checkpoint {path}")
+    elif args.cmd == "distil":
+        from .distil import DistilConfig, Distiller
+        dcfg = DistilConfig.load(args.config)
+        dist = Distiller(dcfg, args.run_dir or Path("runs") / args.config.stem,
+                         progress=not args.no_progress, device=args.device)
+        path = dist.run(until_step=args.steps,
+                        max_seconds=None if args.minutes is None else 60 * args.minutes)
+        print(f"step {dist.step}: checkpoint {path}")
+    elif args.cmd == "prepare":
+        from .config import TrainConfig
+        from .data import Batches
+        cfg = TrainConfig.load(args.config)
+        pools = Batches(cfg.data, cfg.seed, progress=sys.stderr.isatty(),
+                        workers=args.workers).pools
+        for k, pool in pools.items():
+            print(f"{cfg.name}: k={k} pool {pool.shape}")
+    elif args.cmd == "spacing":
+        _spacing(args)
+    elif args.cmd == "optimise":
+        _optimise(args)
+    else:
+        from .samplers import sample
+        pts = sample(args.name, args.n, count=args.count, seed=args.seed,
+                     progress=sys.stderr.isatty(), workers=args.workers)
+        _save_points(pts, args.output)
 
 
 if __name__ == "__main__":
