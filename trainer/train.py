@@ -211,7 +211,8 @@ def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
 
     ``runner`` has ``cfg`` (steps, lr schedule, log_every, checkpoint_every_s), ``run_dir``,
     ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns the loss per grid size)
-    and ``state()`` (what its checkpoint holds). Logs to ``run_dir/log.csv``, checkpoints every few minutes and at the end.
+    and ``state()`` (what its checkpoint holds). Logs to ``run_dir/log.csv``, checkpoints
+    every few minutes and at the end.
     """
     cfg = runner.cfg
     until = cfg.steps if until_step is None else min(until_step, cfg.steps)
