@@ -249,6 +249,42 @@ def test_a_later_stage_starts_from_the_earlier_student(tiny_onnx, tmp_path, monk
                   progress=False)
 
 
+def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, tmp_path,
+                                                                    monkeypatch):
+    from dataclasses import replace
+    from export.onnx_export import export_checkpoint
+    from trainer.train import save_run
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_distil(tiny_onnx, student_unet={"base_channels": 4, "num_heads": 1})
+    d = Distiller(cfg, tmp_path / "one", progress=False)
+    teacher = net_from_onnx(tiny_onnx)[0]
+    assert (sum(p.numel() for p in d.model.parameters())
+            < sum(p.numel() for p in teacher.parameters()) / 2)
+    # seeded: the same config starts from the same weights
+    again = Distiller(cfg, tmp_path / "again", progress=False).model.state_dict()
+    assert all(torch.equal(v, again[k]) for k, v in d.model.state_dict().items())
+    d.run()
+    with torch.no_grad():  # two steps leave equal (untrained) tensors, which the exporter
+        for p in d.ema.parameters():  # stores once: make them differ, as training does
+            p.add_(0.05 * torch.randn_like(p))
+    out, _ = export_checkpoint(save_run(d), tmp_path / "small.onnx", parity_sides=(8,))
+    card = diffsampler_rt.Model(out).card
+    unet = card["config"]["unet"]
+    assert (unet["base_channels"], unet["num_heads"]) == (4, 1)
+    assert unet["coord_bits"] == TINY_ONNX_UNET["coord_bits"]  # the rest is the teacher's
+    assert card["parameters"] == sum(p.numel() for p in d.model.parameters())
+    assert "in a net of its own (base_channels 4, num_heads 1)" in card["provenance"]
+    assert diffsampler_rt.generate(out, 64, seed=0).shape == (64, 2)
+    # a later stage of it starts from it
+    later = Distiller(replace(cfg, init_from=str(out), steps=1), tmp_path / "two",
+                      progress=False)
+    start = net_from_onnx(out)[0].state_dict()
+    assert all(torch.equal(v, start[k]) for k, v in later.model.state_dict().items())
+    with pytest.raises(ValueError, match=r"unknown student_unet keys \['width'\]"):
+        tiny_distil(tiny_onnx, student_unet={"width": 4})
+
+
 def test_difference_term_charges_cell_to_cell_error_only():
     ab = torch.tensor(alphas_cumprod({"kind": "linear", "beta_start": 1e-4, "beta_end": 0.02,
                                       "num_steps": 1000}), dtype=torch.float32)

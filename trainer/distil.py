@@ -44,7 +44,7 @@ from .data import cache_dir
 from .density import OLD_FLOOR
 from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
                     run_loop)
-from .unet import UNet
+from .unet import UNet, UNetConfig
 from .warm_start import net_from_onnx
 
 LOSS_WEIGHTINGS = ("snr", "truncated_snr")
@@ -94,6 +94,11 @@ class DistilConfig:
     #: follow the teacher's card guide (autoguidance at its weight per size) in the
     #: trajectories; the student itself runs unguided
     teacher_guidance: bool = False
+    #: changes to the teacher's architecture for a smaller (faster) student, as
+    #: trainer.unet.UNetConfig fields, e.g. {"base_channels": 24}; such a student cannot
+    #: start from the teacher's weights, so it starts from fresh ones (seeded by ``seed``)
+    #: unless ``init_from`` names an earlier stage of it
+    student_unet: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         for name in ("sizes", "trajectories", "batch_sizes"):
@@ -111,6 +116,9 @@ class DistilConfig:
                              f"got {self.loss_weighting!r}")
         if min(self.sizes) < 4:
             raise ValueError(f"grid sides must be >= 4, got {self.sizes}")
+        unknown = set(self.student_unet or ()) - {f.name for f in fields(UNetConfig)}
+        if unknown:
+            raise ValueError(f"unknown student_unet keys {sorted(unknown)}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -256,7 +264,10 @@ class Distiller:
         self.earlier = {"steps": 0, "seconds": 0}  # of the stages before init_from
         if cfg.init_from:
             net = self._earlier_stage(Path(cfg.init_from))
-        self.model.load_state_dict(net.state_dict())
+        elif cfg.student_unet:
+            net = None  # another architecture: fresh weights, seeded above
+        if net is not None:
+            self.model.load_state_dict(net.state_dict())
         self.model.to(self.device)
         self.ema = copy.deepcopy(self.model).requires_grad_(False)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=0.0)
@@ -298,10 +309,10 @@ class Distiller:
         if "density" in self.teacher_card:
             data = replace(data, density_floor=self.teacher_card.get("density_floor",
                                                                      OLD_FLOOR))
+        unet = dict(self.cfg.student_unet or {}, attention_window=self.cfg.attention_window)
         return replace(self.teacher_cfg, name=self.cfg.name, default_solver="ddim",
                        default_sample_steps=self.cfg.student_steps, data=data,
-                       unet=replace(self.teacher_cfg.unet,
-                                    attention_window=self.cfg.attention_window))
+                       unet=replace(self.teacher_cfg.unet, **unet))
 
     def state(self) -> dict[str, Any]:
         distillation = {"teacher": self.teacher_card["name"],
@@ -317,8 +328,13 @@ class Distiller:
                        f"({self.earlier['seconds'] / 60:.0f} min) in earlier stages")
         guide = self.teacher_card.get("guide") if self.cfg.teacher_guidance else None
         guided_by = f"; guided by {guide['model']} as its card says" if guide else ""
+        smaller = ""
+        if self.cfg.student_unet:
+            smaller = " in a net of its own (" + ", ".join(
+                f"{k} {v}" for k, v in sorted(self.cfg.student_unet.items())) + ")"
         provenance = (f"{self.teacher_card['name']} (trained {self.teacher_card['training_steps']}"
-                      f" steps{guided_by}) distilled to {self.cfg.student_steps} DDIM steps with "
+                      f" steps{guided_by}) distilled to {self.cfg.student_steps} DDIM steps"
+                      f"{smaller} with "
                       f"`python -m trainer distil` for {self.step} steps, "
                       f"{self.elapsed / 60:.0f} min on {describe_devices(self.devices)}{earlier}")
         return {"config": self.student_config().to_dict(), "distil_config": self.cfg.to_dict(),
