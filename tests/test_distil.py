@@ -283,6 +283,8 @@ def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, 
     assert all(torch.equal(v, start[k]) for k, v in later.model.state_dict().items())
     with pytest.raises(ValueError, match=r"unknown student_unet keys \['width'\]"):
         tiny_distil(tiny_onnx, student_unet={"width": 4})
+    with pytest.raises(ValueError, match="may not set attention_window"):
+        tiny_distil(tiny_onnx, student_unet={"attention_window": 4})
 
 
 def test_difference_term_charges_cell_to_cell_error_only():

@@ -119,6 +119,9 @@ class DistilConfig:
         unknown = set(self.student_unet or ()) - {f.name for f in fields(UNetConfig)}
         if unknown:
             raise ValueError(f"unknown student_unet keys {sorted(unknown)}")
+        if "attention_window" in (self.student_unet or ()):
+            raise ValueError("student_unet may not set attention_window: the config's own "
+                             "attention_window field sets it")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
