@@ -266,10 +266,8 @@ class Distiller:
         self.model = UNet(self.student_config().unet)
         self.earlier = {"steps": 0, "seconds": 0}  # of the stages before init_from
         if cfg.init_from:
-            net = self._earlier_stage(Path(cfg.init_from))
-        elif cfg.student_unet:
-            net = None  # another architecture: fresh weights, seeded above
-        if net is not None:
+            self.model.load_state_dict(self._earlier_stage(Path(cfg.init_from)).state_dict())
+        elif not cfg.student_unet:  # another architecture keeps its fresh, seeded weights
             self.model.load_state_dict(net.state_dict())
         self.model.to(self.device)
         self.ema = copy.deepcopy(self.model).requires_grad_(False)
