@@ -15,7 +15,7 @@ from trainer.distil import (DistilConfig, Distiller, hop_loss, hop_times,  # noq
                             teacher_trajectories)
 from trainer.warm_start import net_from_onnx  # noqa: E402
 
-from .conftest import TINY_ONNX_UNET, tiny_config  # noqa: E402
+from .conftest import TINY_ONNX_UNET, TINY_UNET, tiny_config  # noqa: E402
 
 
 def tiny_distil(teacher, **changes) -> DistilConfig:
@@ -285,6 +285,63 @@ def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, 
         tiny_distil(tiny_onnx, student_unet={"width": 4})
     with pytest.raises(ValueError, match="may not set attention_window"):
         tiny_distil(tiny_onnx, student_unet={"attention_window": 4})
+
+
+def test_a_student_with_fewer_res_blocks_starts_from_an_earlier_student_cut_down(
+        tiny_onnx, tmp_path, monkeypatch):
+    from dataclasses import replace
+    from export.onnx_export import export_checkpoint
+    from trainer.drop_blocks import drop_res_blocks
+    from trainer.train import save_run
+
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_distil(tiny_onnx, student_unet={"num_res_blocks": 2})
+    d = Distiller(cfg, tmp_path / "two_blocks", progress=False)
+    d.run()
+    with torch.no_grad():  # untrained equal tensors are stored once: make them differ
+        for p in d.ema.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    wide, _ = export_checkpoint(save_run(d), tmp_path / "wide.onnx", parity_sides=(8,))
+    cut_cfg = replace(cfg, student_unet={"num_res_blocks": 1}, init_from=str(wide), steps=1)
+    cut = Distiller(cut_cfg, tmp_path / "one_block", progress=False)
+    start = drop_res_blocks(net_from_onnx(wide)[0], 1).state_dict()
+    assert all(torch.equal(v, start[k]) for k, v in cut.model.state_dict().items())
+    cut.run()
+    record = cut.state()["card_extra"]
+    assert record["distillation"]["earlier_res_blocks"] == 2
+    assert "in earlier stages, the first with 2 res blocks a level" in record["provenance"]
+    # a student cannot grow blocks, nor change anything else, from an earlier one
+    with pytest.raises(ValueError, match="has architecture"):
+        Distiller(replace(cut_cfg, student_unet={"num_res_blocks": 3}), tmp_path / "grow",
+                  progress=False)
+    with pytest.raises(ValueError, match="has architecture"):
+        Distiller(replace(cut_cfg, student_unet={"num_res_blocks": 1, "base_channels": 4}),
+                  tmp_path / "other", progress=False)
+
+
+def test_cutting_res_blocks_keeps_the_first_of_each_level_and_the_upsampling_ones():
+    import doctest
+
+    from trainer import drop_blocks
+    from trainer.drop_blocks import drop_res_blocks, kept_blocks
+    from trainer.unet import UNet, UNetConfig
+
+    assert doctest.testmod(drop_blocks).failed == 0
+    down, up = kept_blocks(3, 2, 1)
+    # down: [b, b, conv, b, b, conv, b, b] -> [b, conv, b, conv, b]
+    assert down == {0: 0, 1: 2, 2: 3, 3: 5, 4: 6}
+    # up: 3 blocks a level, the last reading the downsampling's skip -> 2
+    assert up == {0: 0, 1: 2, 2: 3, 3: 5, 4: 6, 5: 8}
+    assert kept_blocks(2, 3, 3) == ({i: i for i in range(7)}, {i: i for i in range(8)})
+    with pytest.raises(ValueError, match="1 to 2 res blocks a level, not 3"):
+        kept_blocks(3, 2, 3)
+    torch.manual_seed(0)
+    full = UNet(UNetConfig(**{**TINY_UNET, "num_res_blocks": 2}))
+    same = drop_res_blocks(full, 2)
+    x, t = torch.randn(2, 2, 8, 8), torch.tensor([10, 500])
+    with torch.no_grad():
+        assert torch.equal(same(x, t), full(x, t))
+        assert drop_res_blocks(full, 1)(x, t).shape == x.shape
 
 
 def test_difference_term_charges_cell_to_cell_error_only():

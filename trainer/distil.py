@@ -42,6 +42,7 @@ from diffsampler_rt.solvers import SOLVERS, solve
 
 from .data import cache_dir
 from .density import OLD_FLOOR
+from .drop_blocks import drop_res_blocks
 from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
                     run_loop)
 from .unet import UNet, UNetConfig
@@ -97,7 +98,8 @@ class DistilConfig:
     #: changes to the teacher's architecture for a smaller (faster) student, as
     #: trainer.unet.UNetConfig fields, e.g. {"base_channels": 24}; such a student cannot
     #: start from the teacher's weights, so it starts from fresh ones (seeded by ``seed``)
-    #: unless ``init_from`` names an earlier stage of it
+    #: unless ``init_from`` names an earlier stage of it, or an earlier student of the same
+    #: net but for more res blocks a level (cut down: trainer.drop_blocks)
     student_unet: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
@@ -265,6 +267,7 @@ class Distiller:
         self.device = torch.device(device)
         self.model = UNet(self.student_config().unet)
         self.earlier = {"steps": 0, "seconds": 0}  # of the stages before init_from
+        self.cut_from = None  # res blocks a level of the earlier stages, if cut down
         if cfg.init_from:
             self.model.load_state_dict(self._earlier_stage(Path(cfg.init_from)).state_dict())
         elif not cfg.student_unet:  # another architecture keeps its fresh, seeded weights
@@ -295,9 +298,17 @@ class Distiller:
         if not record or record["teacher"] != self.teacher_card["name"]:
             raise ValueError(f"init_from {str(path)!r} is not a student of "
                              f"{self.teacher_card['name']!r}")
-        if cfg.unet != self.student_config().unet:
-            raise ValueError(f"init_from {str(path)!r} has architecture {cfg.unet}, "
-                             f"this student needs {self.student_config().unet}")
+        need = self.student_config().unet
+        if cfg.unet != need:
+            if (replace(cfg.unet, num_res_blocks=need.num_res_blocks) != need
+                    or cfg.unet.num_res_blocks < need.num_res_blocks):
+                raise ValueError(f"init_from {str(path)!r} has architecture {cfg.unet}, "
+                                 f"this student needs {need}")
+            # the same net but for more res blocks a level: start from it cut down
+            net = drop_res_blocks(net, need.num_res_blocks)
+            self.cut_from = cfg.unet.num_res_blocks
+        else:  # a stage after a cut keeps the record of it
+            self.cut_from = record.get("earlier_res_blocks")
         self.earlier = {"steps": record["steps"] + record.get("earlier_steps", 0),
                         "seconds": record["seconds"] + record.get("earlier_seconds", 0)}
         return net
@@ -327,6 +338,9 @@ class Distiller:
                                 earlier_seconds=self.earlier["seconds"])
             earlier = (f" after {self.earlier['steps']} steps "
                        f"({self.earlier['seconds'] / 60:.0f} min) in earlier stages")
+            if self.cut_from:
+                distillation.update(earlier_res_blocks=self.cut_from)
+                earlier += f", the first with {self.cut_from} res blocks a level"
         guide = self.teacher_card.get("guide") if self.cfg.teacher_guidance else None
         guided_by = f"; guided by {guide['model']} as its card says" if guide else ""
         smaller = ""
