@@ -309,7 +309,7 @@ def test_a_student_with_fewer_res_blocks_starts_from_an_earlier_student_cut_down
     cut.run()
     record = cut.state()["card_extra"]
     assert record["distillation"]["earlier_res_blocks"] == 2
-    assert "in earlier stages, the first with 2 res blocks a level" in record["provenance"]
+    assert "in earlier stages, cut down from 2 res blocks a level" in record["provenance"]
     # a student cannot grow blocks, nor change anything else, from an earlier one
     with pytest.raises(ValueError, match="has architecture"):
         Distiller(replace(cut_cfg, student_unet={"num_res_blocks": 3}), tmp_path / "grow",

@@ -340,7 +340,7 @@ class Distiller:
                        f"({self.earlier['seconds'] / 60:.0f} min) in earlier stages")
             if self.cut_from:
                 distillation.update(earlier_res_blocks=self.cut_from)
-                earlier += f", the first with {self.cut_from} res blocks a level"
+                earlier += f", cut down from {self.cut_from} res blocks a level"
         guide = self.teacher_card.get("guide") if self.cfg.teacher_guidance else None
         guided_by = f"; guided by {guide['model']} as its card says" if guide else ""
         smaller = ""
