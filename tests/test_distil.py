@@ -26,6 +26,19 @@ def tiny_distil(teacher, **changes) -> DistilConfig:
                            "warmup_steps": 1, "attention_window": 2, "lr": 1e-3, **changes})
 
 
+def export_untrained_student(d: Distiller, path):
+    """Export a student after a few steps: its still-equal (untrained) tensors, which the
+    exporter stores once and net_from_onnx could not read back, made to differ first, as
+    training does."""
+    from export.onnx_export import export_checkpoint
+    from trainer.train import save_run
+
+    with torch.no_grad():
+        for p in d.ema.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    return export_checkpoint(save_run(d), path, parity_sides=(8,))[0]
+
+
 def test_net_from_onnx_recovers_every_weight(tiny_onnx):
     # the fixture keeps the exported net's state dict next to the file
     ref = torch.load(tiny_onnx.with_suffix(".state"))
@@ -252,8 +265,6 @@ def test_a_later_stage_starts_from_the_earlier_student(tiny_onnx, tmp_path, monk
 def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, tmp_path,
                                                                     monkeypatch):
     from dataclasses import replace
-    from export.onnx_export import export_checkpoint
-    from trainer.train import save_run
 
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
     cfg = tiny_distil(tiny_onnx, student_unet={"base_channels": 4, "num_heads": 1})
@@ -265,10 +276,7 @@ def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, 
     again = Distiller(cfg, tmp_path / "again", progress=False).model.state_dict()
     assert all(torch.equal(v, again[k]) for k, v in d.model.state_dict().items())
     d.run()
-    with torch.no_grad():  # two steps leave equal (untrained) tensors, which the exporter
-        for p in d.ema.parameters():  # stores once: make them differ, as training does
-            p.add_(0.05 * torch.randn_like(p))
-    out, _ = export_checkpoint(save_run(d), tmp_path / "small.onnx", parity_sides=(8,))
+    out = export_untrained_student(d, tmp_path / "small.onnx")
     card = diffsampler_rt.Model(out).card
     unet = card["config"]["unet"]
     assert (unet["base_channels"], unet["num_heads"]) == (4, 1)
@@ -290,18 +298,13 @@ def test_a_student_of_its_own_architecture_starts_from_fresh_weights(tiny_onnx, 
 def test_a_student_with_fewer_res_blocks_starts_from_an_earlier_student_cut_down(
         tiny_onnx, tmp_path, monkeypatch):
     from dataclasses import replace
-    from export.onnx_export import export_checkpoint
     from trainer.drop_blocks import drop_res_blocks
-    from trainer.train import save_run
 
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
     cfg = tiny_distil(tiny_onnx, student_unet={"num_res_blocks": 2})
     d = Distiller(cfg, tmp_path / "two_blocks", progress=False)
     d.run()
-    with torch.no_grad():  # untrained equal tensors are stored once: make them differ
-        for p in d.ema.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    wide, _ = export_checkpoint(save_run(d), tmp_path / "wide.onnx", parity_sides=(8,))
+    wide = export_untrained_student(d, tmp_path / "wide.onnx")
     cut_cfg = replace(cfg, student_unet={"num_res_blocks": 1}, init_from=str(wide), steps=1)
     cut = Distiller(cut_cfg, tmp_path / "one_block", progress=False)
     start = drop_res_blocks(net_from_onnx(wide)[0], 1).state_dict()
