@@ -382,3 +382,26 @@ def test_bundled_students_were_distilled_from_the_bundled_teachers():
             window = teacher.card["config"]["unet"].get("attention_window")
             assert "re-exported" in teacher.card["provenance"] and window, (name, d["teacher"])
             assert max(teacher.card["trained_sizes"]) <= (4 * window) ** 2, (name, window)
+
+
+def test_distillation_recipes_load_and_later_stages_chain():
+    # every bundled student's recipe loads; a later stage (NAME_stageN.json) starts from the
+    # previous stage's export in that stage's run directory, as the training recipes do, and
+    # the last stage of each student gives the bundled file's step count
+    from pathlib import Path
+    last: dict[str, tuple[int, DistilConfig]] = {}
+    for path in sorted(Path("trainer/configs/distil").glob("*.json")):
+        cfg = DistilConfig.load(path)
+        stem, _, stage = path.stem.partition("_stage")
+        assert cfg.name == stem, path
+        if stage:
+            previous = stem if stage == "2" else f"{stem}_stage{int(stage) - 1}"
+            assert cfg.init_from == f"runs/{previous}/{cfg.name}.onnx", path
+            assert DistilConfig.load(path.with_name(f"{previous}.json")).teacher == cfg.teacher
+        number = int(stage or 1)
+        if cfg.name not in last or number > last[cfg.name][0]:
+            last[cfg.name] = (number, cfg)
+    for name, (_, cfg) in last.items():
+        card = diffsampler_rt.load(name).card
+        assert card["default_steps"] == cfg.student_steps, name
+        assert card["distillation"]["config"]["student_steps"] == cfg.student_steps, name
