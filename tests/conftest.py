@@ -49,6 +49,16 @@ def tiny_onnx(tmp_path_factory) -> Path:
     return path
 
 
+def recipe_stage(path: Path) -> tuple[str, int, str | None]:
+    """A recipe file's model name, its stage (1 for NAME.json, N for NAME_stageN.json) and
+    the stem of the recipe before it (None for a first stage): a later stage starts from the
+    previous stage's export in that stage's run directory, runs/<previous>/<NAME>.onnx."""
+    stem, _, stage = path.stem.partition("_stage")
+    if not stage:
+        return stem, 1, None
+    return stem, int(stage), stem if stage == "2" else f"{stem}_stage{int(stage) - 1}"
+
+
 def changed_card_error(model: str, change: dict, key: str) -> str:
     """The message of the ModelFormatError naming ``key`` that parse_card raises on bundled
     ``model``'s card with ``change`` applied (a None value removes that entry)."""

@@ -15,7 +15,7 @@ from trainer.distil import (DistilConfig, Distiller, hop_loss, hop_times,  # noq
                             teacher_trajectories)
 from trainer.warm_start import net_from_onnx  # noqa: E402
 
-from .conftest import TINY_ONNX_UNET, TINY_UNET, tiny_config  # noqa: E402
+from .conftest import TINY_ONNX_UNET, TINY_UNET, recipe_stage, tiny_config  # noqa: E402
 
 
 def tiny_distil(teacher, **changes) -> DistilConfig:
@@ -392,13 +392,11 @@ def test_distillation_recipes_load_and_later_stages_chain():
     last: dict[str, tuple[int, DistilConfig]] = {}
     for path in sorted(Path("trainer/configs/distil").glob("*.json")):
         cfg = DistilConfig.load(path)
-        stem, _, stage = path.stem.partition("_stage")
+        stem, number, previous = recipe_stage(path)
         assert cfg.name == stem, path
-        if stage:
-            previous = stem if stage == "2" else f"{stem}_stage{int(stage) - 1}"
+        if previous:
             assert cfg.init_from == f"runs/{previous}/{cfg.name}.onnx", path
             assert DistilConfig.load(path.with_name(f"{previous}.json")).teacher == cfg.teacher
-        number = int(stage or 1)
         if cfg.name not in last or number > last[cfg.name][0]:
             last[cfg.name] = (number, cfg)
     for name, (_, cfg) in last.items():

@@ -8,7 +8,7 @@ torch = pytest.importorskip("torch")
 from trainer.config import TrainConfig  # noqa: E402
 from trainer.train import Trainer, load_checkpoint, lr_at  # noqa: E402
 
-from .conftest import tiny_config  # noqa: E402
+from .conftest import recipe_stage, tiny_config  # noqa: E402
 
 
 def test_exact_resume_after_stop(tmp_path):
@@ -81,10 +81,9 @@ def test_bundled_recipes_load():
         cfg = TrainConfig.load(path)
         # later training stages (NAME_stageN.json) share their model's name and start from
         # the previous stage's export in that stage's run directory
-        stem, _, stage = path.stem.partition("_stage")
+        stem, _, previous = recipe_stage(path)
         assert cfg.name == stem
-        if stage:
-            previous = stem if stage == "2" else f"{stem}_stage{int(stage) - 1}"
+        if previous:
             assert cfg.init_from == f"runs/{previous}/{cfg.name}.onnx"
             assert cfg.unet == TrainConfig.load(path.with_name(f"{previous}.json")).unet
 
