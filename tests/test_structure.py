@@ -299,9 +299,9 @@ def test_docstring_examples():
     assert doctest.testmod(structure).failed == 0
 
 
-def test_bundled_sobol_owen_fast_makes_nets_at_its_8_step_default():
+def test_bundled_sobol_owen_fast_makes_nets_at_its_6_step_default():
     m = diffsampler_rt.load("sobol_owen_fast")
-    assert (m.card["default_solver"], m.card["default_steps"]) == ("ddim", 8)
+    assert (m.card["default_solver"], m.card["default_steps"]) == ("ddim", 6)
     assert m.card["distillation"]["teacher"] == "sobol_owen"
     pts = m.generate(256, 2, seed=0)
     assert np.all(empty_elementary_fraction(pts) == 0)
