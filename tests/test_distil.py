@@ -403,3 +403,60 @@ def test_distillation_recipes_load_and_later_stages_chain():
         card = diffsampler_rt.load(name).card
         assert card["default_steps"] == cfg.student_steps, name
         assert card["distillation"]["config"]["student_steps"] == cfg.student_steps, name
+
+
+def test_config_rejects_bad_spectrum_settings():
+    with pytest.raises(ValueError, match="spectrum_weight"):
+        DistilConfig(teacher="gbn", name="x", spectrum_weight=-1.0)
+    with pytest.raises(ValueError, match=r"spectrum_sizes \(64,\)"):
+        DistilConfig(teacher="gbn", name="x", spectrum_weight=1.0, spectrum_sizes=(64,))
+    with pytest.raises(ValueError, match="spectrum_sets"):
+        DistilConfig(teacher="gbn", name="x", spectrum_sets=0)
+    with pytest.raises(ValueError, match="spectrum_radius"):
+        DistilConfig(teacher="gbn", name="x", spectrum_radius=6.0)
+
+
+def test_the_rollout_is_the_runtimes_ddim(tiny_onnx, tmp_path, monkeypatch):
+    # the spectrum loss differentiates the student's own sets: the rollout must be what the
+    # runtime makes from the same starting noise with the same weights
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    d = Distiller(tiny_distil(tiny_onnx), tmp_path / "run", progress=False)
+    x = torch.randn(3, 2, 8, 8, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        got = d.rollout(x).numpy()
+
+    def eps_fn(xn, t):
+        with torch.no_grad():
+            return d.model(torch.tensor(xn, dtype=torch.float32),
+                           torch.full((len(xn),), float(t))).numpy()
+
+    ts = timesteps(len(d.teacher.alpha_bar), 2)
+    want = ddim(eps_fn, x.numpy(), d.teacher.alpha_bar, ts)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=2e-5)  # float32 against float64
+
+
+def test_spectrum_loss_trains_and_logs_its_column(tiny_onnx, tmp_path, monkeypatch):
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_distil(tiny_onnx, steps=2, log_every=1, spectrum_weight=10.0,
+                      spectrum_sizes=(8,), spectrum_sets=2, spectrum_radius=2.0)
+    d = Distiller(cfg, tmp_path / "run", progress=False)
+    figure, target = d.spectra[8]
+    assert target.shape == (32,) and torch.isfinite(target).all()
+    # the target is the teacher's sets' mean spectrum as the runtime's figure has it
+    from diffsampler_rt.grid import decode
+    from diffsampler_rt.spectrum import radial_spectrum
+    final = d.trajectories[8][-1].numpy() / float(d.teacher_card["offset_scale"])
+    pts = decode(final, stratified=d.teacher_card["embedding"] == "stratified")
+    np.testing.assert_allclose(target.numpy(), radial_spectrum(pts)[1][:32], rtol=1e-4,
+                               atol=1e-6)
+    # the untrained tiny student's sets lie outside their cells, where the clamp has no
+    # gradient: read its offsets at a scale that keeps them inside
+    d.teacher_card = {**d.teacher_card, "offset_scale": 1e4}
+    loss = d.spectrum_loss(8)
+    loss.backward()
+    assert loss.item() > 0
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in d.model.parameters())
+    d.model.zero_grad(set_to_none=True)
+    d.run()
+    header = (tmp_path / "run" / "log.csv").read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["loss_k4", "loss_k8", "spectrum_k8"]

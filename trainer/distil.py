@@ -13,6 +13,14 @@ max(SNR, 1), is an option, but here it let the first, near-pure-noise hop domina
 minimum distance), plus optionally the squared differences of the x0 error between
 neighbouring cells (``difference_weight``).
 
+The hop loss matches each hop's regression to the teacher's state: what a hop cannot
+predict it averages, and the hops' errors add up at generation, so the student's sets come
+out blurred (SOT's spectral peak lower and wider than the teacher's). ``spectrum_weight``
+adds a distribution-level term: the student makes a few sets end to end (all its steps,
+differentiable, from the teacher's starting noise) and their mean radial power spectrum
+(:mod:`trainer.spectral`) is pulled towards the mean spectrum of all the teacher's sets
+of that size.
+
 A guided teacher (card ``"guide"``, autoguidance) can be distilled with its guidance
 (``teacher_guidance``): its trajectories then follow (1 + w) eps_teacher - w eps_guide at
 the card's weight for each grid size, so the student learns the guided sets in one network
@@ -39,10 +47,12 @@ from diffsampler_rt.guidance import guided, weight_at
 from diffsampler_rt.metadata import network_digest, network_sha256
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
+from diffsampler_rt.spectrum import BIN_WIDTH, NUM_BINS
 
 from .data import cache_dir
 from .density import OLD_FLOOR
 from .drop_blocks import drop_res_blocks
+from .spectral import RadialSpectrum, grid_points
 from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
                     run_loop)
 from .unet import UNet, UNetConfig
@@ -101,9 +111,20 @@ class DistilConfig:
     #: unless ``init_from`` names an earlier stage of it, or an earlier student of the same
     #: net but for more res blocks a level (cut down: trainer.drop_blocks)
     student_unet: dict[str, Any] | None = None
+    #: weight of the spectrum loss: the squared difference, over the radial bins up to
+    #: ``spectrum_radius`` sqrt(n), between the mean spectrum of ``spectrum_sets`` sets the
+    #: student makes end to end (all its steps, from the teacher's starting noise) and the
+    #: mean spectrum of all the teacher's sets of that size; at the grid sides
+    #: ``spectrum_sizes`` (each one of ``sizes``). The hop loss alone leaves the student's
+    #: sets blurred: each hop's regression to the teacher's state averages what it cannot
+    #: predict, and the errors of the hops add up
+    spectrum_weight: float = 0.0
+    spectrum_sizes: tuple[int, ...] = (32,)
+    spectrum_sets: int = 8
+    spectrum_radius: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("sizes", "trajectories", "batch_sizes"):
+        for name in ("sizes", "trajectories", "batch_sizes", "spectrum_sizes"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.teacher_solver not in SOLVERS or self.teacher_solver == "ddpm":
             raise ValueError(f"teacher_solver must be a deterministic solver (ddim, dpmpp_2m), "
@@ -118,6 +139,16 @@ class DistilConfig:
                              f"got {self.loss_weighting!r}")
         if min(self.sizes) < 4:
             raise ValueError(f"grid sides must be >= 4, got {self.sizes}")
+        if self.spectrum_weight < 0:
+            raise ValueError(f"spectrum_weight must be >= 0, got {self.spectrum_weight}")
+        if self.spectrum_weight and not set(self.spectrum_sizes) <= set(self.sizes):
+            raise ValueError(f"spectrum_sizes {self.spectrum_sizes} must be among sizes "
+                             f"{self.sizes}")
+        if self.spectrum_sets < 1:
+            raise ValueError(f"spectrum_sets must be >= 1, got {self.spectrum_sets}")
+        if not BIN_WIDTH <= self.spectrum_radius <= NUM_BINS * BIN_WIDTH:
+            raise ValueError(f"spectrum_radius must be in [{BIN_WIDTH}, "
+                             f"{NUM_BINS * BIN_WIDTH}], got {self.spectrum_radius}")
         unknown = set(self.student_unet or ()) - {f.name for f in fields(UNetConfig)}
         if unknown:
             raise ValueError(f"unknown student_unet keys {sorted(unknown)}")
@@ -281,6 +312,8 @@ class Distiller:
         self.trajectories = {k: torch.from_numpy(cached_trajectories(cfg, self.teacher,
                                                                      self.teacher_sha1, k, n))
                              for k, n in zip(cfg.sizes, cfg.trajectories)}
+        self.spectra = {k: self._spectrum_target(k) for k in cfg.spectrum_sizes
+                        if cfg.spectrum_weight}
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step = 0
         self.elapsed = 0.0
@@ -312,6 +345,48 @@ class Distiller:
         self.earlier = {"steps": record["steps"] + record.get("earlier_steps", 0),
                         "seconds": record["seconds"] + record.get("earlier_seconds", 0)}
         return net
+
+    def _points(self, grid: torch.Tensor) -> torch.Tensor:
+        """A batch of scaled offsets -> points, as the runtime decodes them."""
+        return grid_points(grid / float(self.teacher_card["offset_scale"]),
+                           stratified=self.teacher_card["embedding"] == "stratified",
+                           toroidal=self.teacher_card.get("padding") == "circular")
+
+    def _spectrum_target(self, k: int) -> tuple[RadialSpectrum, torch.Tensor]:
+        """The spectrum figure at side k and the mean spectrum of the teacher's sets there."""
+        figure = RadialSpectrum(k * k, int(round(self.cfg.spectrum_radius / BIN_WIDTH)))
+        final = self.trajectories[k][-1]
+        with torch.no_grad():
+            target = sum(figure(self._points(final[i:i + 64])) * len(final[i:i + 64])
+                         for i in range(0, len(final), 64)) / len(final)
+        return figure.to(self.device), target.to(self.device)
+
+    def rollout(self, x: torch.Tensor) -> torch.Tensor:
+        """The student's deterministic DDIM from x at its first timestep to its clean
+        sample (as the runtime runs it), differentiable."""
+        for t, t_next in zip(self.hops[:-1].tolist(), self.hops[1:].tolist()):
+            ab_t = self.alpha_bar[t]
+            eps = self.model(x, torch.full((len(x),), float(t), device=x.device))
+            x0 = (x - (1 - ab_t).sqrt() * eps) / ab_t.sqrt()
+            if t_next < 0:
+                return x0
+            ab_n = self.alpha_bar[t_next]
+            x = ab_n.sqrt() * x0 + (1 - ab_n).sqrt() * eps
+        return x
+
+    def spectrum_loss(self, k: int) -> torch.Tensor:
+        """Squared difference of the student's mean spectrum (``spectrum_sets`` sets made
+        end to end from the teacher's starting noise) from the teacher's, weighted."""
+        figure, target = self.spectra[k]
+        traj = self.trajectories[k]
+        i = torch.randint(0, traj.shape[1], (self.cfg.spectrum_sets,), generator=self.gen)
+        spectrum = figure(self._points(self.rollout(traj[0, i].to(self.device))))
+        return self.cfg.spectrum_weight * torch.mean((spectrum - target) ** 2)
+
+    def loss_names(self) -> list[str]:
+        """The log's column for each loss :meth:`train_step` returns."""
+        return ([f"loss_k{k}" for k in self.cfg.sizes]
+                + [f"spectrum_k{k}" for k in self.spectra])
 
     def student_config(self):
         """The teacher's training config, renamed, with the student's sampling defaults (and
@@ -379,10 +454,12 @@ class Distiller:
                 yield hop_loss(self.model, traj[j, i].to(dev), traj[j + 1, i].to(dev),
                                self.hops[j].to(dev), self.hops[j + 1].to(dev), self.alpha_bar,
                                self.cfg.loss_weighting, self.cfg.difference_weight)
+            for k in self.spectra:
+                yield self.spectrum_loss(k)
 
         return optimiser_step(self, losses())
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Distil to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
-        return run_loop(self, sizes=self.cfg.sizes, desc=f"distil {self.cfg.name}",
+        return run_loop(self, columns=self.loss_names(), desc=f"distil {self.cfg.name}",
                         until_step=until_step, max_seconds=max_seconds)

@@ -158,7 +158,8 @@ class Trainer:
 
     def run(self, until_step: int | None = None, max_seconds: float | None = None) -> Path:
         """Train to ``until_step`` (default: the config's steps) or for ``max_seconds``."""
-        return run_loop(self, sizes=self.cfg.data.sizes, desc=self.cfg.name,
+        return run_loop(self, columns=[f"loss_k{k}" for k in self.cfg.data.sizes],
+                        desc=self.cfg.name,
                         until_step=until_step, max_seconds=max_seconds)
 
 
@@ -205,13 +206,14 @@ def save_run(runner: Any) -> Path:
     return path
 
 
-def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
+def run_loop(runner: Any, *, columns: list[str], desc: str,
              until_step: int | None = None, max_seconds: float | None = None) -> Path:
     """The step loop of :class:`Trainer` and :class:`trainer.distil.Distiller`.
 
     ``runner`` has ``cfg`` (steps, lr schedule, log_every, checkpoint_every_s), ``run_dir``,
     ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns the loss per grid size)
-    and ``state()`` (what its checkpoint holds). Logs to ``run_dir/log.csv``, checkpoints
+    and ``state()`` (what its checkpoint holds); ``columns`` names the log's column for each
+    of those losses. Logs to ``run_dir/log.csv``, checkpoints
     every few minutes and at the end.
     """
     cfg = runner.cfg
@@ -226,7 +228,7 @@ def run_loop(runner: Any, *, sizes: tuple[int, ...], desc: str,
     with open(log_path, "a", newline="") as fh:
         log = csv.writer(fh)
         if new_log:
-            log.writerow(["step", "elapsed_s", "lr", "loss"] + [f"loss_k{k}" for k in sizes])
+            log.writerow(["step", "elapsed_s", "lr", "loss"] + list(columns))
         while runner.step < until:
             t0 = time.monotonic()
             losses = runner.train_step()

@@ -1,0 +1,31 @@
+"""The differentiable radial spectrum (trainer.spectral) against the runtime's figure."""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from diffsampler_rt.grid import decode  # noqa: E402
+from diffsampler_rt.spectrum import NUM_BINS, radial_spectrum  # noqa: E402
+from trainer.spectral import RadialSpectrum, grid_points  # noqa: E402
+
+
+@pytest.mark.parametrize("k, bins, stratified, toroidal",
+                         [(8, NUM_BINS, False, False), (16, 20, True, False), (8, 30, False, True)])
+def test_torch_spectrum_is_the_runtimes_figure(k, bins, stratified, toroidal):
+    grid = np.random.default_rng(k).uniform(-0.7, 0.7, (3, 2, k, k))
+    pts = grid_points(torch.tensor(grid), stratified=stratified, toroidal=toroidal)
+    decoded = decode(grid, stratified=stratified, toroidal=toroidal)
+    if not toroidal:
+        np.testing.assert_allclose(pts.numpy(), decoded, atol=1e-12)
+    got = RadialSpectrum(k * k, bins)(pts).numpy()
+    np.testing.assert_allclose(got, radial_spectrum(decoded)[1][:bins], rtol=1e-9, atol=1e-12)
+
+
+def test_torch_spectrum_has_gradients_and_checks_its_input():
+    pts = torch.rand(2, 64, 2, dtype=torch.float64, requires_grad=True)
+    figure = RadialSpectrum(64, 10)
+    torch.autograd.gradcheck(lambda p: figure(p), (pts,))
+    with pytest.raises(ValueError, match=r"\(B, 64, 2\)"):
+        figure(torch.rand(2, 63, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match="bins"):
+        RadialSpectrum(64, 0)
