@@ -359,7 +359,8 @@ class Distiller:
         with torch.no_grad():
             target = sum(figure(self._points(final[i:i + 64])) * len(final[i:i + 64])
                          for i in range(0, len(final), 64)) / len(final)
-        return figure.to(self.device), target.to(self.device)
+        # the student's float32 once here, not at every step's call
+        return figure.to(self.device, torch.float32), target.to(self.device)
 
     def rollout(self, x: torch.Tensor) -> torch.Tensor:
         """The student's deterministic DDIM from x at its first timestep to its clean

@@ -211,9 +211,9 @@ def run_loop(runner: Any, *, columns: list[str], desc: str,
     """The step loop of :class:`Trainer` and :class:`trainer.distil.Distiller`.
 
     ``runner`` has ``cfg`` (steps, lr schedule, log_every, checkpoint_every_s), ``run_dir``,
-    ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns the loss per grid size)
-    and ``state()`` (what its checkpoint holds); ``columns`` names the log's column for each
-    of those losses. Logs to ``run_dir/log.csv``, checkpoints
+    ``progress``, ``step``, ``elapsed``, ``train_step()`` (returns its losses: one per grid
+    size, for a distiller with a spectrum loss one more per size it scores) and ``state()``
+    (what its checkpoint holds); ``columns`` names the log's column for each of those losses. Logs to ``run_dir/log.csv``, checkpoints
     every few minutes and at the end.
     """
     cfg = runner.cfg
