@@ -414,6 +414,10 @@ def test_config_rejects_bad_spectrum_settings():
         DistilConfig(teacher="gbn", name="x", spectrum_sets=0)
     with pytest.raises(ValueError, match="spectrum_radius"):
         DistilConfig(teacher="gbn", name="x", spectrum_radius=6.0)
+    with pytest.raises(ValueError, match="'sampler'"):
+        DistilConfig(teacher="gbn", name="x", spectrum_target="sampler")
+    with pytest.raises(ValueError, match="spectrum_examples must be >= 1, got 0"):
+        DistilConfig(teacher="gbn", name="x", spectrum_examples=0)
 
 
 def test_the_rollout_is_the_runtimes_ddim(tiny_onnx, tmp_path, monkeypatch):
@@ -460,3 +464,82 @@ def test_spectrum_loss_trains_and_logs_its_column(tiny_onnx, tmp_path, monkeypat
     d.run()
     header = (tmp_path / "run" / "log.csv").read_text().splitlines()[0].split(",")
     assert header[-3:] == ["loss_k4", "loss_k8", "spectrum_k8"]
+
+
+def test_examples_target_is_the_samplers_own_sets_spectrum(tiny_onnx, tmp_path, monkeypatch):
+    # the tiny teacher learned fresh Sobol'+Owen sets: the target is the mean spectrum of
+    # spectrum_examples such sets, drawn from the distillation's seed
+    from diffsampler_rt.spectrum import radial_spectrum
+    from trainer.samplers import sample
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_distil(tiny_onnx, spectrum_weight=1.0, spectrum_sizes=(8,), spectrum_radius=2.0,
+                      spectrum_target="examples", spectrum_examples=5, seed=3)
+    _, target = Distiller(cfg, tmp_path / "run", progress=False).spectra[8]
+    sets = sample("sobol_owen", 64, count=5, seed=np.random.default_rng([3, 8]))
+    np.testing.assert_allclose(target.numpy(), radial_spectrum(sets)[1][:32], rtol=1e-5,
+                               atol=1e-7)
+
+
+def test_the_card_rollout_is_the_runtimes_structure_guided_generation(tiny_onnx, tmp_path,
+                                                                      monkeypatch):
+    # with spectrum_card the rollout follows the card: noise shaped by its coarse-noise
+    # gain and structure temperature, the structure imposed on the clean-set prediction of
+    # its last structure_guidance steps and on the decoded set, as the runtime does
+    from diffsampler_rt.coarse_noise import shape_noise
+    from diffsampler_rt.grid import decode, encode_stratified
+    from diffsampler_rt.solvers import project_x0
+    from diffsampler_rt.structure import impose_n_rooks
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    settings = {"structure": "n_rooks", "structure_guidance": 2, "structure_temperature": 0.9,
+                "coarse_noise": {"gain": [1.5, 1.5], "n": [16, 64], "cut": 0.25}}
+    cfg = tiny_distil(tiny_onnx, student_steps=4, teacher_steps=4, spectrum_weight=1.0,
+                      spectrum_sizes=(8,), spectrum_sets=2, spectrum_radius=2.0,
+                      spectrum_card=settings)
+    d = Distiller(cfg, tmp_path / "run", progress=False)
+    assert d.rollout_card == {**d.teacher_card, **settings}
+    # offsets read at a scale that keeps the untrained net's points inside their cells
+    scale = 1e3
+    d.teacher_card = {**d.teacher_card, "offset_scale": scale}
+    state = d.gen.get_state()
+    x = d._start_noise(8, 2)
+    d.gen.set_state(state)
+    raw = torch.randn((2, 2, 8, 8), generator=d.gen, dtype=torch.float64).numpy()
+    np.testing.assert_allclose(x.numpy(), shape_noise(raw, 1.5, 0.25, 0.9), rtol=1e-6)
+    with torch.no_grad():
+        got = d.rollout(x).numpy()
+
+    def eps_fn(xn, t):
+        with torch.no_grad():
+            return d.model(torch.tensor(xn, dtype=torch.float32),
+                           torch.full((len(xn),), float(t))).numpy()
+
+    def project(x0):
+        return encode_stratified(impose_n_rooks(decode(x0 / scale, stratified=True), 8),
+                                 8) * scale
+
+    ts = timesteps(len(d.teacher.alpha_bar), 4)
+    guided_eps = project_x0(eps_fn, d.teacher.alpha_bar, project, ts[2:])
+    want = ddim(guided_eps, x.numpy(), d.teacher.alpha_bar, ts)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)  # float32, offsets x 1e3
+    # the loss scores the imposed set, and its gradient passes the imposition
+    d.gen.set_state(state)
+    loss = d.spectrum_loss(8)
+    figure, target = d.spectra[8]
+    imposed = torch.from_numpy(impose_n_rooks(decode(want / scale, stratified=True), 8))
+    np.testing.assert_allclose(loss.item(), torch.mean((figure(imposed.float()) - target) ** 2)
+                               .item(), rtol=1e-3)
+    loss.backward()
+    assert loss.item() > 0
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in d.model.parameters())
+
+
+def test_spectrum_card_is_a_model_or_valid_card_entries(tiny_onnx, tmp_path, monkeypatch):
+    from diffsampler_rt.errors import ModelFormatError
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    spectrum = dict(spectrum_weight=1.0, spectrum_sizes=(8,), spectrum_sets=2)
+    d = Distiller(tiny_distil(tiny_onnx, spectrum_card=str(tiny_onnx), **spectrum),
+                  tmp_path / "a", progress=False)
+    assert d.rollout_card == diffsampler_rt.load(tiny_onnx).card
+    with pytest.raises(ModelFormatError, match="structure_guidance"):
+        Distiller(tiny_distil(tiny_onnx, spectrum_card={"structure_guidance": -1}, **spectrum),
+                  tmp_path / "b", progress=False)
