@@ -26,6 +26,15 @@ def tiny_distil(teacher, **changes) -> DistilConfig:
                            "warmup_steps": 1, "attention_window": 2, "lr": 1e-3, **changes})
 
 
+def student_denoiser(d: Distiller):
+    """The student's noise prediction as a numpy denoiser, for the runtime's solvers."""
+    def eps_fn(xn, t):
+        with torch.no_grad():
+            return d.model(torch.tensor(xn, dtype=torch.float32),
+                           torch.full((len(xn),), float(t))).numpy()
+    return eps_fn
+
+
 def export_untrained_student(d: Distiller, path):
     """Export a student after a few steps: its still-equal (untrained) tensors, which the
     exporter stores once and net_from_onnx could not read back, made to differ first, as
@@ -428,11 +437,7 @@ def test_the_rollout_is_the_runtimes_ddim(tiny_onnx, tmp_path, monkeypatch):
     x = torch.randn(3, 2, 8, 8, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         got = d.rollout(x).numpy()
-
-    def eps_fn(xn, t):
-        with torch.no_grad():
-            return d.model(torch.tensor(xn, dtype=torch.float32),
-                           torch.full((len(xn),), float(t))).numpy()
+    eps_fn = student_denoiser(d)
 
     ts = timesteps(len(d.teacher.alpha_bar), 2)
     want = ddim(eps_fn, x.numpy(), d.teacher.alpha_bar, ts)
@@ -507,11 +512,7 @@ def test_the_card_rollout_is_the_runtimes_structure_guided_generation(tiny_onnx,
     np.testing.assert_allclose(x.numpy(), shape_noise(raw, 1.5, 0.25, 0.9), rtol=1e-6)
     with torch.no_grad():
         got = d.rollout(x).numpy()
-
-    def eps_fn(xn, t):
-        with torch.no_grad():
-            return d.model(torch.tensor(xn, dtype=torch.float32),
-                           torch.full((len(xn),), float(t))).numpy()
+    eps_fn = student_denoiser(d)
 
     def project(x0):
         return encode_stratified(impose_n_rooks(decode(x0 / scale, stratified=True), 8),
