@@ -47,11 +47,12 @@ import numpy as np
 import torch
 
 from diffsampler_rt.card import CARD_KEY, describe_devices, parse_card
-from diffsampler_rt.coarse_noise import gain_at, shape_noise
+from diffsampler_rt.coarse_noise import shape_noise
 from diffsampler_rt.grid import decode, encode_stratified
 from diffsampler_rt.guidance import guided, weight_at
 from diffsampler_rt.metadata import network_digest, network_sha256
-from diffsampler_rt.per_size import cut_at
+# the runtime's own start-noise settings, so the rollout starts as generation does
+from diffsampler_rt.model import _noise_shaping as noise_shaping
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 from diffsampler_rt.spectrum import BIN_WIDTH, NUM_BINS
@@ -436,7 +437,12 @@ class Distiller:
         card = self.rollout_card
         return bool(card) and card["embedding"] == "stratified" and applies(card, k)
 
-    def _impose(self, pts: np.ndarray, k: int) -> np.ndarray:
+    def _imposed_points(self, grid: torch.Tensor) -> np.ndarray:
+        """A batch of scaled offsets (B, 2, k, k), decoded as the runtime does and with the
+        rollout card's structure imposed: points (B, k*k, 2), float64, no gradient."""
+        k = grid.shape[-1]
+        scale = float(self.teacher_card["offset_scale"])
+        pts = decode(grid.detach().cpu().double().numpy() / scale, stratified=True)
         return impose_unchecked(pts, k, self.rollout_card["structure"],
                                 block=block_at(self.rollout_card, k))
 
@@ -449,12 +455,8 @@ class Distiller:
             return traj[0, torch.randint(0, traj.shape[1], (count,), generator=self.gen)]
         x = torch.randn((count, 2, k, k), generator=self.gen, dtype=torch.float64).numpy()
         hot = card.get("structure_temperature", 1.0) if self._imposed(k) else 1.0
-        coarse = card.get("coarse_noise")
-        if coarse:
-            x = shape_noise(x, gain_at(coarse, k * k), cut_at(coarse, k * k), hot)
-        else:
-            x = x * hot
-        return torch.from_numpy(x).float()
+        shaping = noise_shaping(card.get("coarse_noise"), k * k, hot)
+        return torch.from_numpy(x if shaping is None else shape_noise(x, *shaping)).float()
 
     def rollout(self, x: torch.Tensor) -> torch.Tensor:
         """The student's deterministic DDIM from x at its first timestep to its clean
@@ -470,9 +472,8 @@ class Distiller:
             x0 = (x - (1 - ab_t).sqrt() * eps) / ab_t.sqrt()
             if t in guided:
                 scale = float(self.teacher_card["offset_scale"])
-                pts = decode(x0.detach().cpu().double().numpy() / scale, stratified=True)
-                moved = torch.from_numpy(encode_stratified(self._impose(pts, k), k) * scale)
-                x0 = x0 + (moved.to(x0) - x0).detach()
+                moved = encode_stratified(self._imposed_points(x0), k) * scale
+                x0 = x0 + (torch.from_numpy(moved).to(x0) - x0).detach()
                 eps = (x - ab_t.sqrt() * x0) / (1 - ab_t).sqrt()
             if t_next < 0:
                 return x0
@@ -487,10 +488,8 @@ class Distiller:
         grid = self.rollout(self._start_noise(k, self.cfg.spectrum_sets).to(self.device))
         pts = self._points(grid)
         if self._imposed(k):  # the decoded set's structure, passed straight through
-            scale = float(self.teacher_card["offset_scale"])
-            moved = self._impose(decode(grid.detach().cpu().double().numpy() / scale,
-                                        stratified=True), k)
-            pts = pts + (torch.from_numpy(moved).to(pts) - pts).detach()
+            moved = torch.from_numpy(self._imposed_points(grid)).to(pts)
+            pts = pts + (moved - pts).detach()
         return self.cfg.spectrum_weight * torch.mean((figure(pts) - target) ** 2)
 
     def loss_names(self) -> list[str]:
