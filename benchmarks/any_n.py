@@ -90,6 +90,8 @@ def measure(pool, name: str, n: int, a) -> dict:
            "random": row_of(pool, dropped_at_random(square, n, a.seed), count, spec_a,
                             stats_a, stats_b)}
     e = out["eliminated"]
+    if model.card.get("structure_prefix"):  # made from the next power of four's net
+        e["grid"] = 1 << (k - 1).bit_length()
     print(f"{name} n={n}: MAE {e['mae']:.4f} (floor {out['floor']:.4f}, random drop "
           f"{out['random']['mae']:.4f}); "
           + ", ".join(f"{k} {100 * e[k]['rel']:+.1f}%" for k in STATS), flush=True)
@@ -125,6 +127,9 @@ def _restore_text(card: dict, record: dict) -> str:
     the card field have the runtime's default, which was the only cut then)."""
     if card.get("structure") == "rank1_lattice":  # replaced by a lattice, not restored
         return ""
+    if card.get("structure_prefix"):
+        return ("sets of n points: the first n, in Sobol' order, of a net of the next "
+                "power-of-four size (card `structure_prefix`, `diffsampler_rt.sobol_orbit`); ")
     cut = record.get("restore_cut", RESTORE_CUT)
     source = "the card's `restore_cut`" if cut != RESTORE_CUT else "the runtime's default"
     return f"thinned sets restored below {cut:g} sqrt(n) ({source}); "
@@ -142,8 +147,11 @@ def report(records: dict[str, dict], out: Path) -> None:
         "so that their density below 0.25 sqrt(n) is the full set's again (the holes' "
         "large-scale power taken out), and applies the card's sliced-OT polish and minimum "
         "spacing at n; the lattice models' thinned sets are replaced by their nearest "
-        "lattice of n points instead (`diffsampler_rt.elimination`). *thinned* is that (the "
-        "default); *dropped at random* is the same k*k sets with k*k - n points dropped at "
+        "lattice of n points instead (`diffsampler_rt.elimination`), and the sobol_owen "
+        "models' sets are the first n points of a net of the next power-of-four size in the "
+        "Sobol' order it is given (`diffsampler_rt.sobol_orbit`). *thinned* (*first n, Sobol' "
+        "order*) is that (the default); *dropped at random* is the same k*k sets with "
+        "k*k - n points dropped at "
         "random and nothing else, the plain alternative. Columns as in "
         "[fidelity.md](fidelity.md): spectrum MAE against reference batch A with the floor "
         "(batch B vs A) in brackets, relative differences of the means ± two standard errors "
@@ -163,10 +171,12 @@ def report(records: dict[str, dict], out: Path) -> None:
                   + " | ".join(NAMES[k] for k in STATS) + " | gen ms/set | ref ms/set |",
                   "|---|---|---|---|" + "---|" * len(STATS) + "---|---|"]
         for r in rows:
-            for key, label in (("eliminated", "**thinned**"), ("random", "dropped at random")):
+            made = "**first n, Sobol' order**" if "grid" in r["eliminated"] else "**thinned**"
+            for key, label in (("eliminated", made), ("random", "dropped at random")):
                 e = r[key]
                 ms = f"{r['gen_ms']:.0f} | {r['ref_ms']:.0f}" if key == "eliminated" else " | "
-                lines.append(f"| {r['n']} ({r['k']}x{r['k']}) | {r['count']} | {label} | "
+                side = e.get("grid", r["k"])
+                lines.append(f"| {r['n']} ({side}x{side}) | {r['count']} | {label} | "
                              f"{e['mae']:.4f} ({r['floor']:.4f}) | "
                              + " | ".join(_fmt_rel(e[k], tolerance(k)) for k in STATS)
                              + f" | {ms} |")

@@ -782,8 +782,14 @@ def _structure_text(c: dict) -> str:
     hot = (f", the solver starting there from noise at temperature "
            f"{c['structure_temperature']:g} (its coarse modes at the coarse-noise gain)"
            if "structure_temperature" in c else "")
+    runs = (f"; at other grid sides (576 here) every full run of {c['structure_runs']} cells "
+            "of a column and row stratified at its own sub-strip width, aligned with either "
+            "end" if c.get("structure_runs") else "")
+    prefix = ("; at other n (576 here) the first n points in Sobol' order of a net of the next "
+              "power-of-four size, imposed onto the Owen-scrambled Sobol' nets "
+              "(diffsampler_rt.sobol_orbit)" if c.get("structure_prefix") else "")
     return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide}"
-            f"{hot} (diffsampler_rt.structure)")
+            f"{hot}{runs} (diffsampler_rt.structure){prefix}")
 
 
 def _stored_option(source: bool | str | None) -> str:

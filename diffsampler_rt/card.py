@@ -34,7 +34,8 @@ REQUIRED = {"format_version": int, "name": str, "sampler": str, "embedding": str
 
 #: card fields that refine the card's ``"structure"`` and need one (removed with it)
 STRUCTURE_SETTINGS = ("structure_min_side", "structure_guidance", "structure_sides",
-                      "structure_temperature", "structure_block")
+                      "structure_temperature", "structure_block", "structure_prefix",
+                      "structure_runs")
 #: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
 #: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
 MAX_SPACING = 1.07
@@ -113,6 +114,20 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if block is not None and structure is not None and structure != "n_rooks":
         raise ModelFormatError(f"{source}: model card field 'structure_block' needs the "
                                f"structure 'n_rooks', the card says {structure!r}")
+    prefix = card.get("structure_prefix")
+    if prefix is not None and not isinstance(prefix, bool):
+        raise ModelFormatError(f"{source}: model card field 'structure_prefix' must be true "
+                               f"or false, got {prefix!r}")
+    runs = card.get("structure_runs")
+    if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 2):
+        raise ModelFormatError(f"{source}: model card field 'structure_runs' must be an "
+                               f"integer >= 2, got {runs!r}")
+    if runs is not None and structure is not None and structure != "n_rooks":
+        raise ModelFormatError(f"{source}: model card field 'structure_runs' needs the "
+                               f"structure 'n_rooks', the card says {structure!r}")
+    if prefix and structure != "dyadic_net":
+        raise ModelFormatError(f"{source}: model card field 'structure_prefix' needs the "
+                               f"structure 'dyadic_net', the card says {structure!r}")
     if block is not None and (problem := block_problem(block)):
         raise ModelFormatError(f"{source}: model card field {problem}")
     sides = card.get("structure_sides")

@@ -38,6 +38,27 @@ def gain_at(spec: dict, n: int) -> float:
     return per_size.gain_at(spec, n)
 
 
+def shaping(spec: dict | None, n: int, temperature: float = 1.0
+            ) -> tuple[float, float, float] | None:
+    """Arguments of :func:`shape_noise` for the starting noise of an n-point set: (gain of
+    the coarse modes, their cut, factor of every other mode) from a card's
+    ``"coarse_noise"`` (None: no gain) and a structure's ``temperature``; None where the
+    noise stays plain unit noise.
+
+    Examples
+    --------
+    >>> from diffsampler_rt.coarse_noise import shaping
+    >>> shaping({"n": [64, 1024], "gain": [1.5, 1.2], "cut": 0.25}, 1024, 0.9)
+    (1.2, 0.25, 0.9)
+    >>> shaping(None, 1024) is None, shaping(None, 1024, 0.9)
+    (True, (0.9, 1.0, 0.9))
+    """
+    if spec:
+        return gain_at(spec, n), per_size.cut_at(spec, n), temperature
+    # every mode at the temperature
+    return (temperature, 1.0, temperature) if temperature != 1 else None
+
+
 def coarse_filter(k: int, gain: float, cut: float, rest: float = 1.0) -> np.ndarray:
     """Multiplier of the (k, k // 2 + 1) real-FFT modes of a k x k field: ``gain`` where
     0 < |frequency| <= cut * k / 2 (frequencies in cycles across the grid), else ``rest``."""

@@ -13,7 +13,7 @@ import onnxruntime as ort
 from . import _validate
 from ._progress import Progress
 from .card import CARD_KEY, parse_card
-from .coarse_noise import shape_noise
+from .coarse_noise import shape_noise, shaping
 from .density import warp
 from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
@@ -28,6 +28,8 @@ from .shards import Shards, layout, usable_cores
 from .solvers import SOLVERS, project_x0, solve
 from .sliced_ot import iterations_at, polish
 from .spacing import enforce_min_spacing, radius
+from .sobol_orbit import _orbit as impose_sobol_unchecked
+from .sobol_orbit import first_points
 from .structure import _impose as impose_unchecked
 from .structure import applies, block_at
 
@@ -56,15 +58,6 @@ def resolve(model: str | os.PathLike) -> Path:
     raise UnknownModelError(f"unknown model {text!r}; bundled models: "
                             f"{', '.join(bundled_models()) or '(none)'}, or give a path to an "
                             ".onnx file")
-
-
-def _noise_shaping(coarse: dict | None, size: int, hot: float
-                   ) -> tuple[float, float, float] | None:
-    """(gain of the coarse modes, their cut, temperature of the others) of the starting noise
-    at a grid of ``size`` cells, or None for plain unit noise."""
-    if coarse:
-        return gain_at(coarse, size), cut_at(coarse, size), hot
-    return (hot, 1.0, hot) if hot != 1 else None  # every mode at the temperature
 
 
 class Model:
@@ -205,12 +198,18 @@ class Model:
             Restore what the sampler has by construction, as the model card says:
             ``"structure": "dyadic_net"`` (sobol_owen: every set of 2^m points, k a power
             of two, made a (0, m, 2)-net without moving any point out of its grid cell;
-            :mod:`diffsampler_rt.structure`), ``"structure": "n_rooks"`` (ldbn: both 1-d
-            projections stratified at power-of-two k >= 16, also imposed on the clean-set
-            prediction of the last ``"structure_guidance"`` solver steps so that the net
-            arranges its sets around it; with ``"structure_block"``, at k = 64 and 128 the
+            :mod:`diffsampler_rt.structure`; with ``"structure_prefix"``, a set of n points,
+            n not a power of four, is the first n points in Sobol' order of a net of the
+            next power-of-four size imposed onto the Owen-scrambled Sobol' nets, as the
+            first n points of the sequence are; :mod:`diffsampler_rt.sobol_orbit`),
+            ``"structure": "n_rooks"`` (ldbn: both 1-d projections stratified at
+            power-of-two k >= 16, also imposed on the clean-set prediction of the last
+            ``"structure_guidance"`` solver steps so that the net arranges its sets
+            around it; with ``"structure_block"``, at k = 64 and 128 the
             aligned halves of every column and row, and their halves down to 32 cells,
-            stratified at their own sub-strip widths too, as LDBN's are),
+            stratified at their own sub-strip widths too, as LDBN's are; with
+            ``"structure_runs"``, at sides that are not powers of two, every full run of
+            that many cells of a column and row stratified at its own sub-strip width),
             ``"structure": "rank1_lattice"`` (lattice models: each set replaced by the
             rank-1 lattice it is closest to, read off its power spectrum, under a uniformly
             random shift, at the grid sides in
@@ -290,15 +289,21 @@ class Model:
             warnings.warn(f"model {self.name!r} was distilled for {self.card['default_solver']} "
                           f"with {self.card['default_steps']} steps; {solver} with {s} steps "
                           "is outside what it learned and gives poorer sets", stacklevel=3)
+        rng = _validate.rng(seed)
+        structure = _validate.flag("structure", structure)
+        progress = _validate.flag("progress", progress)
+        sequence = False
+        if structure and self.card.get("structure_prefix"):
+            # n not 4^h: the first n points, in Sobol' order, of a net of the next 4^h
+            side = 1 << (k - 1).bit_length()
+            sequence = side * side != n and applies(self.card, side)
+            k = side if sequence else k
         if batch is None:
             per_batch = max(1, POINTS_PER_BATCH // (k * k))
         else:
             per_batch = _validate.integer("batch", batch)
             if per_batch < 1:
                 raise ValueError(f"batch must be >= 1, got {per_batch}")
-        rng = _validate.rng(seed)
-        structure = _validate.flag("structure", structure)
-        progress = _validate.flag("progress", progress)
         # validated now; the sets are made as the caller iterates
         # a structure belongs to the k x k set, except a lattice (one per n: at an n that is
         # not a square, the thinned set is replaced by its nearest lattice of n points); the
@@ -312,7 +317,7 @@ class Model:
         coarse = self.card.get("coarse_noise") if structure else None
         # where the structure is imposed, every mode but the coarse ones at a temperature
         hot = self.card.get("structure_temperature", 1.0) if imposed else 1.0
-        shaping = _noise_shaping(coarse, k * k, hot)
+        noise_shape = shaping(coarse, k * k, hot)
         even = self.card.get("even_out") if structure else None
         # where a structure is imposed the evening comes before it, on the full k x k set
         evened = k * k if imposed else n
@@ -325,14 +330,15 @@ class Model:
         if weight:
             self.guide()  # a missing or mismatched guide fails here, before any work
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, relattice, spacing, sliced, shaping, evening, restore,
-                            weight)
+                            imposed, relattice, spacing, sliced, noise_shape, evening, restore,
+                            weight, sequence)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int,
-                shaping: tuple[float, float, float] | None,
-                evening: tuple[float, float] | None, restore: float, weight: float):
+                noise_shape: tuple[float, float, float] | None,
+                evening: tuple[float, float] | None, restore: float, weight: float,
+                sequence: bool = False):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -358,8 +364,8 @@ class Model:
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
             x = np.stack([g.standard_normal((2, k, k)) for g in sub])
-            if shaping is not None:  # (gain, cut) of the card's "coarse_noise", temperature
-                x = shape_noise(x, *shaping)
+            if noise_shape is not None:  # (gain, cut) of the card's "coarse_noise", temperature
+                x = shape_noise(x, *noise_shape)
 
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])
@@ -378,11 +384,13 @@ class Model:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             if evening is not None and imposed:
                 pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
-            if imposed:  # a lattice's random shift comes after the solver's draws
+            if sequence:  # the column and row scrambles come after the solver's draws
+                pts = first_points(*impose_sobol_unchecked(pts, k, sub), n)
+            elif imposed:  # a lattice's random shift comes after the solver's draws
                 pts = impose_unchecked(pts, k, self.card["structure"], sub, block)
             if relattice:  # n not a square: the thinned set's nearest lattice of n points
                 pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
-            elif n < k * k:  # blue noise: the k*k - n most crowded points go; else at random
+            elif n < pts.shape[-2]:  # blue noise: the most crowded points go; else at random
                 pts = thin(pts, n, torus=toroidal, rngs=None if crowded_first else sub,
                            cut=restore)
             if sliced:

@@ -49,15 +49,26 @@ def applies(card: dict, k: int) -> bool:
     """Whether the card asks for a structure that exists at grid side k (and, with
     ``"structure_sides"``, lists k among the sides it is imposed at)."""
     name = card.get("structure")
-    return (name in STRUCTURES and (name in ANY_SIDE or k & (k - 1) == 0)
-            and k >= card.get("structure_min_side", 1)
+    exists = name in ANY_SIDE or k & (k - 1) == 0 or runs_at(card, k) is not None
+    return (name in STRUCTURES and exists and k >= card.get("structure_min_side", 1)
             and k in card.get("structure_sides", [k]))
+
+
+def runs_at(card: dict, k: int) -> int | None:
+    """The card's ``"structure_runs"`` R at a grid side k that is not a power of two and
+    holds a full run (k >= R), else None."""
+    run = card.get("structure_runs")
+    if card.get("structure") != "n_rooks" or not run or k & (k - 1) == 0 or k < run:
+        return None
+    return run
 
 
 def block_at(card: dict, k: int) -> int | None:
     """The card's ``"structure_block"`` at grid side k: one B for every side, or per side
     from ``{"sides": [K, ...], "block": [B, ...]}`` (None, plain n-rooks, at a side not
-    listed)."""
+    listed); at a side with runs (:func:`runs_at`), the run."""
+    if (run := runs_at(card, k)) is not None:
+        return run
     block = card.get("structure_block")
     if isinstance(block, dict):
         return dict(zip(block["sides"], block["block"])).get(k)
@@ -147,7 +158,14 @@ def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net",
     frac = coord * k - cell  # offset inside the cell, [0, 1)
     if block is None:
         block = 1 if name == "dyadic_net" else k
-    strip = cell * k + _dyadic_slots(frac, block)
+    return _into_strips(coord, frac, cell * k + _dyadic_slots(frac, block), k, keep_offset)
+
+
+def _into_strips(coord: np.ndarray, frac: np.ndarray, strip: np.ndarray, k: int,
+                 keep_offset: bool = True) -> np.ndarray:
+    """Coordinates ``coord`` (offset ``frac`` inside their cells of width 1/k) moved into the
+    1/k^2 strips ``strip``: keeping their position inside the sub-strip they were in, or to
+    the nearest point of the new one."""
     lo, hi = strip_bounds(k * k)
     if keep_offset:
         fine = frac * k - np.floor(frac * k)
@@ -156,6 +174,63 @@ def _restratify(coord: np.ndarray, k: int, name: str = "dyadic_net",
         moved = np.clip(coord, lo[strip], hi[strip])
     # a point already in its sub-strip keeps its coordinate bit for bit
     return np.where(np.floor(coord * (k * k)) == strip, coord, moved)
+
+
+def _stratify_runs(coord: np.ndarray, k: int, run: int) -> np.ndarray:
+    """One coordinate, shape (sets, cell index along it, k cells across): every full run of
+    ``run`` cells across, aligned with the first cell or with the last (per set, whichever
+    moves the points less), gets its points into ``run`` distinct sub-strips of width
+    1 / (run k), each to the nearest point of its new one."""
+    cell = np.arange(k)[None, :, None]
+    frac = coord * k - cell
+    full = k // run * run
+    lo, hi = strip_bounds(k * run)
+    best, cost = coord, None
+    for start in sorted({0, k - full}):
+        part = slice(start, start + full)
+        f = frac[..., part]
+        slots = _rook_slots(f.reshape(f.shape[:-1] + (full // run, run))).reshape(f.shape)
+        strip = cell * run + slots
+        c = coord[..., part]
+        moved = np.where(np.floor(c * (k * run)) == strip, c, np.clip(c, lo[strip], hi[strip]))
+        out = coord.copy()
+        out[..., part] = moved
+        move = ((out - coord) ** 2).sum(axis=(1, 2))
+        if cost is None:
+            best, cost = out, move
+        else:
+            better = move < cost
+            best = np.where(better[:, None, None], out, best)
+    return best
+
+
+def impose_runs(points: np.ndarray, k: int, run: int) -> np.ndarray:
+    """Make every full run of ``run`` cells of each column (row) of a stratified k x k set
+    put its points into ``run`` distinct sub-columns (sub-rows) of width 1 / (run k).
+
+    LDBN's sets have this at every grid side: its offsets along each aligned run of 16
+    cells are radical inverses of 16 consecutive integers. At a side that is not a multiple
+    of ``run`` one run per column is partial and left as it is; the full ones are aligned
+    with the first cell or with the last (LDBN's mirror images), whichever moves the set's
+    points less. Each point stays in its cell and moves to the nearest point of its new
+    sub-strip. Points are in row-major cell order, as for :func:`impose_dyadic_net`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.structure import impose_runs
+    >>> k = 24
+    >>> cells = np.stack(np.meshgrid(np.arange(k), np.arange(k)), -1).reshape(-1, 2)
+    >>> jittered = (cells + np.random.default_rng(0).random((k * k, 2))) / k
+    >>> out = impose_runs(jittered, k, 16)
+    >>> col = out.reshape(k, k, 2)[:, 5, 0]  # x of column 5's points, rows 0 .. 23
+    >>> runs = [np.floor(col[a:a + 16] * k * 16) for a in (0, 8)]
+    >>> max(len(np.unique(r)) for r in runs)  # one of the two alignments is stratified
+    16
+    """
+    if not isinstance(run, (int, np.integer)) or isinstance(run, bool) or not 2 <= run <= k:
+        raise ValueError(f"run must be an integer in [2, k={k}], got {run!r}")
+    return _impose(_checked(points, k), k, "n_rooks", block=int(run))
 
 
 def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
@@ -241,6 +316,10 @@ def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net",
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     out = np.empty_like(grid)
     # x: within each column of cells, across its k rows; y: within each row, across columns
+    if name == "n_rooks" and block and block < k and k & (k - 1):  # runs, k not 2^j
+        out[..., 0] = _stratify_runs(grid[..., 0].swapaxes(1, 2), k, block).swapaxes(1, 2)
+        out[..., 1] = _stratify_runs(grid[..., 1], k, block)
+        return out.reshape(pts.shape)
     out[..., 0] = _restratify(grid[..., 0].swapaxes(1, 2), k, name, block).swapaxes(1, 2)
     out[..., 1] = _restratify(grid[..., 1], k, name, block)
     return out.reshape(pts.shape)

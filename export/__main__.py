@@ -3,7 +3,8 @@
 ``python -m export set-defaults MODEL.onnx [--solver S] [--steps N]
 [--structure dyadic_net|n_rooks|rank1_lattice|none] [--structure-min-side K]
 [--structure-guidance L] [--structure-sides K,K,...] [--structure-temperature T|none]
-[--structure-block B|K:B,...|none]
+[--structure-block B|K:B,...|none] [--structure-prefix on|off]
+[--structure-runs R|none]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
 [--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
@@ -76,6 +77,15 @@ def set_defaults_main(argv: list[str]) -> int:
                         "column (row) at its own sub-strip width, as LDBN does from B = 16 "
                         "(B a power of two; K:B pairs give B per grid side K, plain n-rooks "
                         "at the sides not listed; none: remove)")
+    p.add_argument("--structure-prefix", choices=["on", "off"],
+                   help="dyadic_net: a set of n points, n not a power of four, is the first n "
+                        "points in Sobol' order of a net of the next power-of-four size, imposed "
+                        "onto the Owen-scrambled Sobol' nets (diffsampler_rt.sobol_orbit; off: "
+                        "the network's own set of n points)")
+    p.add_argument("--structure-runs", metavar="R|none",
+                   help="n_rooks: at grid sides that are not powers of two, every full run "
+                        "of R cells of a column (row) stratified at sub-strip width 1/(R k), "
+                        "as LDBN's are (R = 16; none: remove)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -158,6 +168,9 @@ def set_defaults_main(argv: list[str]) -> int:
                         structure=args.structure, structure_min_side=args.structure_min_side,
                         structure_guidance=args.structure_guidance, structure_sides=sides,
                         structure_temperature=temperature, structure_block=block,
+                        structure_prefix=(None if args.structure_prefix is None
+                                          else args.structure_prefix == "on"),
+                        structure_runs=_runs_arg(args.structure_runs),
                         sliced_ot=sliced, min_spacing=spacing, coarse_noise=coarse,
                         even_out=even, restore_cut=restore, guide=guide)
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
@@ -230,6 +243,19 @@ def _block_arg(value: str | None) -> int | dict | str | None:
                          f"commas, or none, got {value!r}") from None
 
 
+def _runs_arg(value: str | None) -> int | str | None:
+    """--structure-runs R (an integer >= 2) or none."""
+    if value is None or value == "none":
+        return value
+    try:
+        run = int(value)
+    except ValueError:
+        run = 0
+    if run < 2:
+        raise UsageError(f"--structure-runs must be an integer >= 2 or none, got {value!r}")
+    return run
+
+
 def structure_text(card: dict) -> str:
     """"n_rooks (k >= 16, guiding 5 steps)", "rank1_lattice (k in 8, 16, 32)", "none"
     (and the starting noise's temperature where the structure has one)."""
@@ -245,6 +271,10 @@ def structure_text(card: dict) -> str:
     if "structure_block" in card:
         from diffsampler_rt.structure import describe_block
         notes.append(describe_block(card["structure_block"]) + " stratified")
+    if "structure_runs" in card:
+        notes.append(f"other sides: full runs of {card['structure_runs']} cells stratified")
+    if card.get("structure_prefix"):
+        notes.append("other n: a net's first n points in Sobol' order")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
 
 

@@ -48,6 +48,8 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  structure_sides: list[int] | None = None,
                  structure_temperature: float | str | None = None,
                  structure_block: int | dict | str | None = None,
+                 structure_prefix: bool | None = None,
+                 structure_runs: int | str | None = None,
                  sliced_ot: dict | str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
@@ -56,9 +58,11 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  guide: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance``, ``structure_sides``,
-    ``structure_temperature`` and ``structure_block``) / ``sliced_ot`` /
-    ``min_spacing`` / ``coarse_noise`` / ``even_out`` / ``restore_cut`` / ``guide`` of the
-    card in ``path`` (``"none"`` removes a structure with its five settings, a temperature, a
+    ``structure_temperature``, ``structure_block``, ``structure_prefix`` and
+    ``structure_runs``) / ``sliced_ot`` / ``min_spacing`` / ``coarse_noise`` / ``even_out`` /
+    ``restore_cut`` / ``guide`` of the card in ``path`` (``"none"`` removes a structure with
+    its seven settings, runs,
+    a temperature, a
     block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which
     then is the runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
@@ -90,6 +94,11 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card["structure_sides"] = structure_sides
         _put(card, "structure_temperature", structure_temperature)
         _put(card, "structure_block", structure_block)
+        _put(card, "structure_runs", structure_runs)
+        if structure_prefix:
+            card["structure_prefix"] = True
+        elif structure_prefix is not None:  # false is the runtime's default: the field goes
+            card.pop("structure_prefix", None)
         if sliced_ot == "none":
             card.pop("sliced_ot", None)
         elif sliced_ot is not None:

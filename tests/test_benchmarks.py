@@ -391,7 +391,9 @@ def test_any_n_report_runs(tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "any_n.md").read_text()
-    assert "| 50 (8x8) | 3 | **thinned** |" in md and "| 50 (8x8) | 3 | dropped at random |" in md
+    # sobol_owen_fast: the first 50 of a 64-point net in Sobol' order (card structure_prefix)
+    assert "| 50 (8x8) | 3 | **first n, Sobol' order** |" in md
+    assert "| 50 (8x8) | 3 | dropped at random |" in md
     assert "## rank1" in md and (tmp_path / "out" / "any_n.png").stat().st_size > 1000
     # a later run rewrites the models it measures and keeps the others' sections; its
     # pooled reference files join the seed-1 draw (6 + 4 sets: 5 a side)
@@ -406,12 +408,14 @@ def test_any_n_report_runs(tmp_path):
     assert res.returncode == 0, res.stderr
     md = (tmp_path / "out" / "any_n.md").read_text()
     owen, rank1 = md.split("## sobol_owen_fast")[1].split("## rank1")
-    assert "| 50 (8x8) | 3 | **thinned** |" in owen and "--sizes 50 --sets 3" in owen
+    assert "| 50 (8x8) | 3 | **first n, Sobol' order** |" in owen
+    assert "--sizes 50 --sets 3" in owen
     assert "| 60 (8x8) | 5 | **thinned** |" in rank1 and "| 50 (8x8)" not in rank1
     assert "--ref-pool rank1:60:2:2-3" in rank1 and "--ref-pool" not in owen
-    # how far the thinned sets were restored (a lattice model's are replaced instead)
-    assert "thinned sets restored below 0.25 sqrt(n) (the runtime's default)" in owen
-    assert "restored below" not in rank1
+    # how the sets of n points were made: the first n in Sobol' order; a lattice model's
+    # thinned sets are replaced, not restored
+    assert "sets of n points: the first n, in Sobol' order" in owen
+    assert "restored below" not in rank1 and "restored below" not in owen
     for bad, match in ((["--sizes", "64"], "64 is a perfect square"),
                        (["--models", "ldbn"], "not measured here"),
                        (["--pool-only"], "--pool-only: no --ref-pool")):

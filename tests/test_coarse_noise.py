@@ -165,12 +165,14 @@ def test_structure_temperature_is_validated(card_change, message):
 
 def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, capsys):
     """set-defaults writes it; the runtime starts the solver from cooler noise at the sizes
-    where the card imposes its structure (ldbn_fast: power-of-two sides >= 16), only there
-    and only with ``structure=True``; ``--structure none`` removes it with the structure."""
+    where the card imposes its structure (ldbn_fast without its runs: power-of-two sides >=
+    16), only there and only with ``structure=True``; ``--structure none`` removes it with
+    the structure."""
     from export.__main__ import main as export_main
     path = tmp_path / "m.onnx"
     shutil.copy(diffsampler_rt.load("ldbn_fast").path, path)
-    assert export_main(["set-defaults", str(path), "--structure-temperature", "none"]) == 0
+    assert export_main(["set-defaults", str(path), "--structure-temperature", "none",
+                        "--structure-runs", "none"]) == 0
     before = {n: diffsampler_rt.Model(path).generate(n, 2, seed=3) for n in (64, 256, 576)}
     white = diffsampler_rt.Model(path).generate(256, 2, seed=3, structure=False)
     capsys.readouterr()

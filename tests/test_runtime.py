@@ -53,7 +53,7 @@ def test_ddpm_solver_is_seeded():
 
 
 def test_stratified_model_keeps_one_point_per_cell():
-    pts = generate("sobol_owen", 576, seed=0, steps=4)
+    pts = generate("ldbn", 576, seed=0, steps=4)
     cell = np.floor(pts * 24).astype(int)
     assert np.unique(cell[:, 1] * 24 + cell[:, 0]).size == 576
 

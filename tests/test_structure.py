@@ -306,3 +306,92 @@ def test_bundled_sobol_owen_fast_makes_nets_at_its_6_step_default():
     pts = m.generate(256, 2, seed=0)
     assert np.all(empty_elementary_fraction(pts) == 0)
     assert np.any(empty_elementary_fraction(m.generate(256, 2, seed=0, structure=False)) > 0)
+
+
+def _runs_strata(pts: np.ndarray, k: int, run: int) -> np.ndarray:
+    """Per set and axis (sets, 2): the alignment (0: first cell, 1: last) whose full runs of
+    ``run`` cells of every column (row) hold ``run`` distinct sub-strips of width
+    1/(k run), or -1 where neither does."""
+    grid = pts.reshape(-1, k, k, 2)
+    out = -np.ones((len(grid), 2), dtype=int)
+    full = k // run * run
+    for c, (axis, coord) in enumerate(((1, grid[..., 0]), (2, grid[..., 1]))):
+        along = np.moveaxis(coord, axis, -1)
+        sub = np.floor(along * k * run).astype(int) % run
+        for a, start in reversed(list(enumerate((0, k - full)))):
+            part = np.sort(sub[..., start:start + full].reshape(*sub.shape[:-1], -1, run), -1)
+            ok = np.all(part == np.arange(run), axis=(1, 2, 3))
+            out[ok, c] = a
+    return out
+
+
+@pytest.mark.parametrize("k, run", [(24, 16), (20, 16), (48, 16), (12, 4)])
+def test_runs_stratify_every_full_run_and_keep_cells(k, run):
+    pts = jittered(k, 4)
+    assert np.all(_runs_strata(pts, k, run) == -1)
+    out = structure.impose_runs(pts, k, run)
+    assert np.all(_runs_strata(out, k, run) >= 0)
+    np.testing.assert_array_equal(np.floor(out * k), np.floor(pts * k))  # cells kept
+    assert np.abs(out - pts).max() < 1 / k
+    np.testing.assert_array_equal(structure.impose_runs(out, k, run), out)  # idempotent
+    if k % run == 0:  # one alignment: every run full
+        assert np.all(_runs_strata(out, k, run) == 0)
+
+
+def test_runs_leave_ldbn_sets_at_other_sides_unchanged():
+    """LDBN's sets at k = 24 have one full run of 16 stratified cells per column and row,
+    aligned with either end (its mirror images); imposing runs of 16 leaves them as they
+    are, and the network-free jittered sets move."""
+    from trainer.samplers import sample
+    k = 24
+    ref = sample("ldbn", k * k, count=8, seed=6)
+    cell = (np.floor(ref[..., 1] * k) * k + np.floor(ref[..., 0] * k)).astype(int)
+    ordered = np.take_along_axis(ref, np.argsort(cell, axis=1)[..., None], axis=1)
+    aligned = _runs_strata(ordered, k, 16)
+    assert np.all(aligned >= 0) and len(np.unique(aligned)) == 2  # both alignments occur
+    np.testing.assert_array_equal(structure.impose_runs(ordered, k, 16), ordered)
+    assert not stratified_projections(ordered).any()  # no n-rooks at 24 in LDBN either
+
+
+@pytest.mark.parametrize("run", [1, 25, 2.0, True])
+def test_runs_are_validated(run):
+    with pytest.raises(ValueError, match=r"run must be an integer in \[2, k=24\], got"):
+        structure.impose_runs(jittered(24, 1), 24, run)
+
+
+@pytest.mark.parametrize("card_change, message", [
+    ({"structure_runs": 1}, "must be an integer >= 2, got 1"),
+    ({"structure_runs": 16.0}, "got 16.0"),
+    ({"structure_runs": True}, "got True"),
+    ({"structure_runs": 16, "structure": "dyadic_net", "structure_guidance": None,
+      "structure_block": None}, "needs the structure 'n_rooks'"),
+])
+def test_card_structure_runs_is_validated(card_change, message):
+    assert message in changed_card_error("ldbn_fast", card_change, "structure_runs")
+
+
+def test_card_structure_runs_apply_at_other_sides_only(tiny_onnx, tmp_path, capsys):
+    """set-defaults --structure-runs 16: at k = 24 (not a power of two) the sets' full runs
+    are stratified, projected in the guided steps too; power-of-two sides are as before."""
+    from export.__main__ import main as export_main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    args = ["set-defaults", str(path), "--structure", "n_rooks", "--structure-min-side", "16"]
+    assert export_main(args) == 0
+    plain = diffsampler_rt.Model(path)
+    assert np.all(_runs_strata(plain.generate(576, 2, seed=4), 24, 16) == -1)
+    capsys.readouterr()
+    assert export_main(["set-defaults", str(path), "--structure-runs", "16"]) == 0
+    assert "other sides: full runs of 16 cells stratified" in capsys.readouterr().out
+    m = diffsampler_rt.Model(path)
+    out = m.generate(576, 2, seed=4)
+    assert np.all(_runs_strata(out, 24, 16) >= 0)
+    for n in (256, 1024, 144):  # powers of two as before; k = 12 < 16: no structure
+        np.testing.assert_array_equal(m.generate(n, 2, seed=4), plain.generate(n, 2, seed=4))
+    assert export_main(["set-defaults", str(path), "--structure-guidance", "2"]) == 0
+    guided = diffsampler_rt.Model(path).generate(576, 2, seed=4)
+    assert np.all(_runs_strata(guided, 24, 16) >= 0) and not np.array_equal(guided, out)
+    assert export_main(["set-defaults", str(path), "--structure-runs", "1"]) == 2
+    assert "--structure-runs must be an integer >= 2 or none, got '1'" in capsys.readouterr().err
+    assert export_main(["set-defaults", str(path), "--structure-runs", "none"]) == 0
+    assert "structure_runs" not in diffsampler_rt.Model(path).card

@@ -47,12 +47,11 @@ import numpy as np
 import torch
 
 from diffsampler_rt.card import CARD_KEY, describe_devices, parse_card
-from diffsampler_rt.coarse_noise import shape_noise
+from diffsampler_rt.coarse_noise import shape_noise, shaping
 from diffsampler_rt.grid import decode, encode_stratified
 from diffsampler_rt.guidance import guided, weight_at
 from diffsampler_rt.metadata import network_digest, network_sha256
 # the runtime's own start-noise settings, so the rollout starts as generation does
-from diffsampler_rt.model import _noise_shaping as noise_shaping
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 from diffsampler_rt.spectrum import BIN_WIDTH, NUM_BINS
@@ -455,8 +454,8 @@ class Distiller:
             return traj[0, torch.randint(0, traj.shape[1], (count,), generator=self.gen)]
         x = torch.randn((count, 2, k, k), generator=self.gen, dtype=torch.float64).numpy()
         hot = card.get("structure_temperature", 1.0) if self._imposed(k) else 1.0
-        shaping = noise_shaping(card.get("coarse_noise"), k * k, hot)
-        return torch.from_numpy(x if shaping is None else shape_noise(x, *shaping)).float()
+        settings = shaping(card.get("coarse_noise"), k * k, hot)
+        return torch.from_numpy(x if settings is None else shape_noise(x, *settings)).float()
 
     def rollout(self, x: torch.Tensor) -> torch.Tensor:
         """The student's deterministic DDIM from x at its first timestep to its clean
