@@ -6,6 +6,7 @@ Every sampler shares one contract: ``fn(n, count, rng) -> float64 array (count, 
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from typing import Callable
 
@@ -89,8 +90,11 @@ def sample(name: str, n: int, *, count: int = 1,
         # set by set, each from its own child stream: a set does not depend on the count
         streams = rng.spawn(int(count))
         parallel = workers > 1 and count > 1
-        with (ProcessPoolExecutor(min(int(workers), int(count))) if parallel
-              else contextlib.nullcontext()) as pool:
+        # spawned, not forked: a fork of a process whose threads (torch's OpenMP,
+        # onnxruntime's pool) hold locks can deadlock its workers (seen once in CI)
+        with (ProcessPoolExecutor(min(int(workers), int(count)),
+                                  mp_context=multiprocessing.get_context("spawn"))
+              if parallel else contextlib.nullcontext()) as pool:
             sets = (pool.map if parallel else map)(_one_set, [name] * count, [int(n)] * count,
                                                    streams)
             if progress:
