@@ -213,7 +213,9 @@ def impose_runs(points: np.ndarray, k: int, run: int) -> np.ndarray:
     of ``run`` one run per column is partial and left as it is; the full ones are aligned
     with the first cell or with the last (LDBN's mirror images), whichever moves the set's
     points less. Each point stays in its cell and moves to the nearest point of its new
-    sub-strip. Points are in row-major cell order, as for :func:`impose_dyadic_net`.
+    sub-strip. Points are in row-major cell order, as for :func:`impose_dyadic_net`. At a
+    power-of-two k this is :func:`impose_n_rooks` with ``block=run`` (the larger aligned
+    blocks, up to whole columns, stratified too, as LDBN's are there).
 
     Examples
     --------
