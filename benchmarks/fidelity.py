@@ -782,9 +782,9 @@ def _structure_text(c: dict) -> str:
     hot = (f", the solver starting there from noise at temperature "
            f"{c['structure_temperature']:g} (its coarse modes at the coarse-noise gain)"
            if "structure_temperature" in c else "")
-    runs = (f"; at other grid sides (576 here) every full run of {c['structure_runs']} cells "
-            "of a column and row stratified at its own sub-strip width, aligned with either "
-            "end" if c.get("structure_runs") else "")
+    runs = (f"; at other grid sides (576 here) every run of {c['structure_runs']} cells of a "
+            "column and row in distinct sub-strips of its own width (all of them in a full "
+            "run), aligned with either end" if c.get("structure_runs") else "")
     prefix = ("; at other n (576 here) the first n points in Sobol' order of a net of the next "
               "power-of-four size, imposed onto the Owen-scrambled Sobol' nets "
               "(diffsampler_rt.sobol_orbit)" if c.get("structure_prefix") else "")

@@ -208,8 +208,8 @@ class Model:
             around it; with ``"structure_block"``, at k = 64 and 128 the
             aligned halves of every column and row, and their halves down to 32 cells,
             stratified at their own sub-strip widths too, as LDBN's are; with
-            ``"structure_runs"``, at sides that are not powers of two, every full run of
-            that many cells of a column and row stratified at its own sub-strip width),
+            ``"structure_runs"``, at sides that are not powers of two, every run of that
+            many cells of a column and row in distinct sub-strips of its own width),
             ``"structure": "rank1_lattice"`` (lattice models: each set replaced by the
             rank-1 lattice it is closest to, read off its power spectrum, under a uniformly
             random shift, at the grid sides in

@@ -176,44 +176,62 @@ def _into_strips(coord: np.ndarray, frac: np.ndarray, strip: np.ndarray, k: int,
     return np.where(np.floor(coord * (k * k)) == strip, coord, moved)
 
 
+def _distinct_slots(frac: np.ndarray, run: int) -> np.ndarray:
+    """Sub-strip (0 .. run-1) per point of each group of r <= run points (last axis), from
+    its offset ``frac`` in [0, 1) inside its cell: r distinct sub-strips in the order of the
+    offsets, each as near the point's own as the others allow (a full group: the ranks)."""
+    order = np.argsort(frac, axis=-1, kind="stable")
+    r = frac.shape[-1]
+    place = np.arange(r)
+    own = np.minimum(np.floor(np.take_along_axis(frac, order, axis=-1) * run), run - 1)
+    # the i-th lowest takes i + max_{j <= i}(own_j - j), capped so that all r fit
+    slot = place + np.minimum(np.maximum.accumulate(own - place, axis=-1), run - r)
+    out = np.empty_like(order)
+    np.put_along_axis(out, order, slot.astype(np.int64), axis=-1)
+    return out
+
+
 def _stratify_runs(coord: np.ndarray, k: int, run: int) -> np.ndarray:
-    """One coordinate, shape (sets, cell index along it, k cells across): every full run of
-    ``run`` cells across, aligned with the first cell or with the last (per set, whichever
-    moves the points less), gets its points into ``run`` distinct sub-strips of width
-    1 / (run k), each to the nearest point of its new one."""
+    """One coordinate, shape (sets, cell index along it, k cells across): the cells across
+    are cut into runs of ``run`` cells aligned with the first cell or with the last (per
+    set, whichever moves the points less); every run, the partial one too, gets its points
+    into distinct sub-strips of width 1 / (run k), each to the nearest point of its new
+    one."""
     cell = np.arange(k)[None, :, None]
     frac = coord * k - cell
     full = k // run * run
     lo, hi = strip_bounds(k * run)
     best, cost = coord, None
     for start in sorted({0, k - full}):
-        part = slice(start, start + full)
-        f = frac[..., part]
-        slots = _rook_slots(f.reshape(f.shape[:-1] + (full // run, run))).reshape(f.shape)
+        slots = np.empty(coord.shape, dtype=np.int64)
+        runs = frac[..., start:start + full]
+        slots[..., start:start + full] = _distinct_slots(
+            runs.reshape(runs.shape[:-1] + (full // run, run)), run).reshape(runs.shape)
+        for part in (slice(0, start), slice(start + full, k)):  # the partial run, if any
+            if part.stop > part.start:
+                slots[..., part] = _distinct_slots(frac[..., part], run)
         strip = cell * run + slots
-        c = coord[..., part]
-        moved = np.where(np.floor(c * (k * run)) == strip, c, np.clip(c, lo[strip], hi[strip]))
-        out = coord.copy()
-        out[..., part] = moved
+        out = np.where(np.floor(coord * (k * run)) == strip, coord,
+                       np.clip(coord, lo[strip], hi[strip]))
         move = ((out - coord) ** 2).sum(axis=(1, 2))
         if cost is None:
             best, cost = out, move
         else:
-            better = move < cost
-            best = np.where(better[:, None, None], out, best)
+            best = np.where((move < cost)[:, None, None], out, best)
     return best
 
 
 def impose_runs(points: np.ndarray, k: int, run: int) -> np.ndarray:
-    """Make every full run of ``run`` cells of each column (row) of a stratified k x k set
-    put its points into ``run`` distinct sub-columns (sub-rows) of width 1 / (run k).
+    """Make every run of ``run`` cells of each column (row) of a stratified k x k set put
+    its points into distinct sub-columns (sub-rows) of width 1 / (run k).
 
     LDBN's sets have this at every grid side: its offsets along each aligned run of 16
-    cells are radical inverses of 16 consecutive integers. At a side that is not a multiple
-    of ``run`` one run per column is partial and left as it is; the full ones are aligned
-    with the first cell or with the last (LDBN's mirror images), whichever moves the set's
-    points less. Each point stays in its cell and moves to the nearest point of its new
-    sub-strip. Points are in row-major cell order, as for :func:`impose_dyadic_net`. At a
+    cells are radical inverses of 16 consecutive integers (a permutation's low nibbles). At
+    a side that is not a multiple of ``run`` one run per column is partial (its r points
+    take r distinct sub-strips of the ``run``, in the order of their offsets, each as near
+    its own as the others allow); the runs are aligned with the first cell or with the last
+    (LDBN's mirror images), whichever moves the set's points less. Each point stays in its
+    cell and moves to the nearest point of its new sub-strip. Points are in row-major cell order, as for :func:`impose_dyadic_net`. At a
     power-of-two k this is :func:`impose_n_rooks` with ``block=run`` (the larger aligned
     blocks, up to whole columns, stratified too, as LDBN's are there).
 

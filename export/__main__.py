@@ -83,9 +83,9 @@ def set_defaults_main(argv: list[str]) -> int:
                         "onto the Owen-scrambled Sobol' nets (diffsampler_rt.sobol_orbit; off: "
                         "the network's own set of n points)")
     p.add_argument("--structure-runs", metavar="R|none",
-                   help="n_rooks: at grid sides that are not powers of two, every full run "
-                        "of R cells of a column (row) stratified at sub-strip width 1/(R k), "
-                        "as LDBN's are (R = 16; none: remove)")
+                   help="n_rooks: at grid sides that are not powers of two, every run of R "
+                        "cells of a column (row) puts its points in distinct sub-strips of "
+                        "width 1/(R k), as LDBN's are (R = 16; none: remove)")
     p.add_argument("--min-spacing", metavar="C|N:C,N:C,...|none",
                    help="push apart pairs closer than C / sqrt(n); N:C pairs give C per size "
                         "(linear in log n between them). C from `python -m trainer spacing "
@@ -272,7 +272,7 @@ def structure_text(card: dict) -> str:
         from diffsampler_rt.structure import describe_block
         notes.append(describe_block(card["structure_block"]) + " stratified")
     if "structure_runs" in card:
-        notes.append(f"other sides: full runs of {card['structure_runs']} cells stratified")
+        notes.append(f"other sides: runs of {card['structure_runs']} cells stratified")
     if card.get("structure_prefix"):
         notes.append("other n: a net's first n points in Sobol' order")
     return card["structure"] + (f" ({', '.join(notes)})" if notes else "")
