@@ -104,27 +104,21 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     for key in STRUCTURE_SETTINGS:
         if card.get(key) is not None and structure is None:
             raise ModelFormatError(f"{source}: model card field {key!r} needs a structure")
-    for key, low in (("structure_min_side", 1), ("structure_guidance", 0)):
+    for key, low in (("structure_min_side", 1), ("structure_guidance", 0), ("structure_runs", 2)):
         value = card.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int)
                                   or value < low):
             raise ModelFormatError(f"{source}: model card field {key!r} must be an integer "
                                    f">= {low}, got {value!r}")
+    for key in ("structure_block", "structure_runs"):  # LDBN's strata: n-rooks refinements
+        if card.get(key) is not None and structure is not None and structure != "n_rooks":
+            raise ModelFormatError(f"{source}: model card field {key!r} needs the "
+                                   f"structure 'n_rooks', the card says {structure!r}")
     block = card.get("structure_block")
-    if block is not None and structure is not None and structure != "n_rooks":
-        raise ModelFormatError(f"{source}: model card field 'structure_block' needs the "
-                               f"structure 'n_rooks', the card says {structure!r}")
     prefix = card.get("structure_prefix")
     if prefix is not None and not isinstance(prefix, bool):
         raise ModelFormatError(f"{source}: model card field 'structure_prefix' must be true "
                                f"or false, got {prefix!r}")
-    runs = card.get("structure_runs")
-    if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 2):
-        raise ModelFormatError(f"{source}: model card field 'structure_runs' must be an "
-                               f"integer >= 2, got {runs!r}")
-    if runs is not None and structure is not None and structure != "n_rooks":
-        raise ModelFormatError(f"{source}: model card field 'structure_runs' needs the "
-                               f"structure 'n_rooks', the card says {structure!r}")
     if prefix and structure != "dyadic_net":
         raise ModelFormatError(f"{source}: model card field 'structure_prefix' needs the "
                                f"structure 'dyadic_net', the card says {structure!r}")

@@ -338,7 +338,7 @@ class Model:
                 spacing: float | None, sliced: int,
                 noise_shape: tuple[float, float, float] | None,
                 evening: tuple[float, float] | None, restore: float, weight: float,
-                sequence: bool = False):
+                sequence: bool):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)

@@ -61,17 +61,17 @@ def _gf2_inverse(a: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=None)
-def _canonical(h: int) -> tuple[np.ndarray, np.ndarray]:
+def _canonical(h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-strip digits (as integers) u[c, r], v[c, r] of the unscrambled 4^h-point Sobol'
-    net's point in column c, row r."""
+    net's point in column c, row r, and the h-bit reversal of 0 .. 2^h - 1."""
     m = 2 * h
-    j, r = np.meshgrid(np.arange(m), np.arange(m))  # P[r, j] = C(j, r) mod 2
-    pascal = np.vectorize(lambda r, j: int(j >= r and (j & r) == r))(r, j)  # Lucas' theorem
+    j, r = np.meshgrid(np.arange(m), np.arange(m))
+    pascal = ((j & r) == r).astype(np.int64)  # P[r, j] = C(j, r) mod 2 (Lucas' theorem)
     b, a, d = pascal[:h, :h], _gf2_inverse(pascal[:h, h:]), pascal[h:, h:]
     cols = _digits(np.arange(2 ** h), h)
     rhs = (cols[None, :, :] + (cols @ b.T)[:, None, :]) % 2  # [c, r]: row digits + B c
     u = (rhs @ a.T) % 2
-    return _value(u), _value((u @ d.T) % 2)
+    return _value(u), _value((u @ d.T) % 2), _value(cols[:, ::-1])
 
 
 def _nested_permutation(h: int, rng: np.random.Generator) -> np.ndarray:
@@ -108,7 +108,7 @@ def _orbit(pts: np.ndarray, k: int, rngs: list[np.random.Generator]
            ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`impose_sobol_orbit` without the checks, one generator per set."""
     h = k.bit_length() - 1
-    u_of, v_of = _canonical(h)
+    u_of, v_of, reverse = _canonical(h)
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
     # canonical column of each column, row of each row: inverse nested permutations
     cols = np.stack([np.argsort(_nested_permutation(h, g)) for g in rngs])
@@ -126,7 +126,6 @@ def _orbit(pts: np.ndarray, k: int, rngs: list[np.random.Generator]
     out[..., 0] = _into_strips(grid[..., 0], frac_x, cell[None, None, :] * k + sub_x, k)
     out[..., 1] = _into_strips(grid[..., 1], frac_y, cell[None, :, None] * k + sub_y, k)
     # the index's bits are the unscrambled x digits, lowest first: column, then sub-strip
-    reverse = _value(_digits(np.arange(k), h)[:, ::-1])
     index = reverse[c] + reverse[u] * k
     return out.reshape(pts.shape), index.reshape(pts.shape[:-1])
 
