@@ -163,11 +163,17 @@ def measure(a, kept: dict | None = None) -> dict:
             if prev_ref is not None:
                 ref_est = prev_ref * (n / prev_n) ** 1.5
             if prev_ref is None or ref_est <= a.ref_budget:
-                ref = _run_child(["reference", sampler, str(n)], timeout=max(60, 4 * a.ref_budget))
-                r["ref_s"] = None if ref is None else ref["ref_s"]
-                r["ref_peak_mib"] = None if ref is None else ref["peak_mib"]
+                try:
+                    ref = _run_child(["reference", sampler, str(n)],
+                                     timeout=max(60, 4 * a.ref_budget))
+                except RuntimeError as exc:  # the sampler's failure is a result, not the run's
+                    ref = {"failed": str(exc).strip().splitlines()[-1][:120]}
+                r["ref_s"] = None if ref is None else ref.get("ref_s")
+                r["ref_peak_mib"] = None if ref is None else ref.get("peak_mib")
                 if ref is None:
                     r["ref_note"] = f"> {4 * a.ref_budget:.0f} s (stopped)"
+                elif "failed" in ref:
+                    r["ref_note"] = f"failed: {ref['failed']}"
             else:
                 r["ref_s"] = None
                 r["ref_note"] = f"not run (~{ref_est:.0f} s estimated)"
@@ -240,7 +246,11 @@ def report(results: dict, a, date: str) -> None:
         "makes a batch of sets (32 up to 4096 points, then ~128 k points per call). "
         "Default solver and steps of each model card; rows from 2026-12-04 on run a batch "
         "of at least one set per core on one single-thread session per core "
-        "(`diffsampler_rt.shards`), earlier rows on one session. *peak*: peak resident "
+        "(`diffsampler_rt.shards`), earlier rows on one session. The 8-bit (`_fast`) "
+        "models' rows from 2026-12-06 (session 81) on run without onnxruntime's "
+        "`session.x64quantprecision` where the CPU has VNNI (the same outputs; with it, as "
+        "in earlier rows on such CPUs, their networks took twice as long) and with it where "
+        "the CPU has none (`diffsampler_rt.model.needs_exact_8bit`). *peak*: peak resident "
         "memory of the measuring process (model, onnxruntime arena, the set; its own VmHWM "
         "from 2026-12-04 on; earlier rows read ru_maxrss, which on Linux also counts the "
         "parent's size at the fork, so they may be too high). Reference: one set of the "

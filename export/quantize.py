@@ -24,9 +24,11 @@ Measured choices (benchmarks/results/quantized.md has the numbers):
   QLinearConv takes that route even for unsigned weights unless the session sets
   ``session.x64quantprecision`` (seen on an AVX2-only AMD EPYC host in session 66:
   gbn_fast's noise prediction 2.0 % off its float model's instead of 0.9 %), so the
-  runtime's sessions set it (``diffsampler_rt.model.session_options``); by onnxruntime's
-  account it acts only where the CPU has no VNNI. 7-bit signed weights (``reduce_range``,
-  the other cure) wrecked the sets (integration errors x4).
+  runtime's sessions set it unless the CPU has VNNI
+  (``diffsampler_rt.model.needs_exact_8bit``): with VNNI the fast kernel is exact, and the
+  option, which still rewrites the weights for the slower unsigned x unsigned kernel, gave
+  the same outputs at half the speed. 7-bit signed weights (``reduce_range``, the other
+  cure) wrecked the sets (integration errors x4).
 
 The card keeps everything it had and gains ``"weights": "int8"`` and a ``"quantization"``
 record (method, calibration sides, sets and feeds, and the float network's short SHA-1, as

@@ -72,3 +72,12 @@ def changed_card_error(model: str, change: dict, key: str) -> str:
     with pytest.raises(ModelFormatError, match=key) as err:
         parse_card({CARD_KEY: json.dumps(card)}, "m")
     return str(err.value)
+
+
+def session_entry(opts, key: str) -> str | None:
+    """An onnxruntime SessionOptions' config entry, or None where it was never set (the
+    Python API raises instead and has no query for it)."""
+    try:
+        return opts.get_session_config_entry(key)
+    except RuntimeError:
+        return None

@@ -14,6 +14,8 @@ from export.__main__ import main as export_main  # noqa: E402
 from export.quantize import quantize, solver_inputs  # noqa: E402
 from trainer.distil import network_hash  # noqa: E402
 
+from .conftest import session_entry  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -74,13 +76,43 @@ def test_bundled_quantised_network_stays_close_to_its_float_one():
         assert 0 < error < (0.015 if t > 300 else 0.05), (t, error)
 
 
-def test_every_session_asks_for_exact_8_bit_products():
+def test_sessions_ask_for_exact_8_bit_products_unless_the_cpu_has_vnni():
     # without it, x86 CPUs lacking VNNI (AVX2-only) saturate the 8-bit products: gbn_fast's
     # error above measured 2.0 % in the noisy steps on an AMD EPYC (AVX2) host, 0.9 % with it
-    from diffsampler_rt.model import X64_QUANT_PRECISION
+    from diffsampler_rt.model import X64_QUANT_PRECISION, needs_exact_8bit
+    want = "1" if needs_exact_8bit() else None
     for model in (diffsampler_rt.load("gbn_fast"), diffsampler_rt.load("sot")):
-        opts = model.session.get_session_options()
-        assert opts.get_session_config_entry(X64_QUANT_PRECISION) == "1"
+        assert session_entry(model.session.get_session_options(), X64_QUANT_PRECISION) == want
+
+
+def test_vnni_is_read_from_the_cpu_flags():
+    from diffsampler_rt.model import needs_exact_8bit
+    epyc = "processor\t: 0\nmodel name\t: AMD EPYC 7763\nflags\t\t: fpu sse4_2 avx2 fma\n"
+    xeon = "flags\t\t: fpu avx2 avx512f avx512_vnni amx_int8\nbugs\t\t: spectre_v1\n"
+    alder = "flags\t\t: fpu avx2 avx_vnni\n"
+    assert needs_exact_8bit(epyc) and not needs_exact_8bit(xeon)
+    assert not needs_exact_8bit(alder)
+    assert needs_exact_8bit("") and needs_exact_8bit("Features\t: fp asimd\n")  # arm64
+
+
+@pytest.mark.skipif(diffsampler_rt.model.needs_exact_8bit(), reason="needs a CPU with VNNI")
+@pytest.mark.parametrize("name", ["gbn_fast", "sot_fast", "sobol_owen_fast"])
+def test_with_vnni_the_exact_option_changes_no_output(name):
+    # the grounds for leaving the option off on VNNI CPUs (where it halves the speed)
+    import onnxruntime as ort
+
+    from diffsampler_rt.model import X64_QUANT_PRECISION, resolve, session_options
+    exact = session_options(1)
+    exact.add_session_config_entry(X64_QUANT_PRECISION, "1")
+    sessions = [ort.InferenceSession(str(resolve(name)), sess_options=o,
+                                     providers=["CPUExecutionProvider"])
+                for o in (exact, session_options(1))]
+    rng = np.random.default_rng(5)
+    for k, t in ((8, 999), (16, 400), (32, 40)):
+        feed = {"x": rng.standard_normal((3, 2, k, k)).astype(np.float32),
+                "t": np.full(3, t, np.float32)}
+        a, b = (s.run(["eps"], feed)[0] for s in sessions)
+        np.testing.assert_array_equal(a, b)
 
 
 def test_exact_8_bit_option_leaves_float_networks_alone(tiny_onnx, monkeypatch):
