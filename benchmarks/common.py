@@ -45,7 +45,8 @@ def cpu_description(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
     name = fields.get("model name", platform.machine() or "unknown CPU")
     flags = set(fields.get("flags", "").split())
     have = [f for f in CPU_FEATURES if f in flags]
-    vnni = "" if {"avx512_vnni", "avx_vnni"} & flags else "; no VNNI"
+    from diffsampler_rt.model import VNNI_FLAGS
+    vnni = "" if VNNI_FLAGS & flags else "; no VNNI"
     return f"{name} ({', '.join(have) or 'none of ' + '/'.join(CPU_FEATURES)}{vnni})"
 
 

@@ -179,8 +179,8 @@ def measure(a, kept: dict | None = None) -> dict:
                 r["ref_note"] = f"not run (~{ref_est:.0f} s estimated)"
             if r.get("ref_s") is not None:
                 prev_n, prev_ref = n, r["ref_s"]
-            elif "stopped" in r.get("ref_note", ""):
-                # a stopped first size must also skip the larger ones, not stop each in turn
+            elif "stopped" in r.get("ref_note", "") or "failed" in r.get("ref_note", ""):
+                # a stopped (or failed) size must also skip the larger ones, not run each in turn
                 prev_n, prev_ref = n, 4 * a.ref_budget
             rows[n] = r
             print(f"{name} n={n}: alone {fmt_s(r['alone_s'])}, batch "
