@@ -67,6 +67,8 @@ def sample(name: str, n: int, *, count: int = 1,
     workers : int, optional
         Processes for the slow samplers (:data:`SLOW`); each set has its own random stream,
         so the sets are the same for any number of workers. Ignored by the fast samplers.
+        The workers are spawned (they import the calling script afresh), so a script that
+        asks for more than one calls this under ``if __name__ == "__main__":``.
 
     Returns
     -------
