@@ -368,6 +368,15 @@ def test_fidelity_marks_only_misses_beyond_their_noise():
     assert _fmt_rel(many, 0.05).startswith("+8.")
 
 
+def test_fidelity_holds_each_student_to_its_base_models_spectrum_target():
+    from benchmarks.fidelity import TARGET_MAE, target_mae
+    assert target_mae("sot_32") == TARGET_MAE["sot_32"] == 0.007
+    assert target_mae("sot_32_fast") == 0.007 and target_mae("ldbn_fast") == 0.006
+    assert target_mae("sot_fast") == TARGET_MAE["sot"]  # not sot_32's: the longest name
+    # no target where issue 4 sets none: the torus, blob and ramp variants and their students
+    assert target_mae("gbn_torus_fast") is None and target_mae("sot_ramp") is None
+
+
 def test_fidelity_tally_counts_every_figure_by_its_mark():
     from benchmarks.fidelity import STATS, _tally_lines, tally
 
