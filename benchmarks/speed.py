@@ -156,6 +156,7 @@ def measure(a, kept: dict | None = None) -> dict:
         rows = {}
         ref_est = 0.0
         prev_n, prev_ref = earlier_reference(kept or {}, sampler, min(a.sizes), a.ref_budget)
+        failed_at = None  # the size whose reference failed: the larger ones say so, not a guess
         for n in a.sizes:
             r = _run_child(["model", name, str(n), str(batch_for(n, a.batch)), str(a.repeats),
                             str(a.threads or 0)], timeout=3600)
@@ -174,9 +175,11 @@ def measure(a, kept: dict | None = None) -> dict:
                     r["ref_note"] = f"> {4 * a.ref_budget:.0f} s (stopped)"
                 elif "failed" in ref:
                     r["ref_note"] = f"failed: {ref['failed']}"
+                    failed_at = n
             else:
                 r["ref_s"] = None
-                r["ref_note"] = f"not run (~{ref_est:.0f} s estimated)"
+                r["ref_note"] = (f"not run (~{ref_est:.0f} s estimated)" if failed_at is None
+                                 else f"not run (failed at n = {failed_at})")
             if r.get("ref_s") is not None:
                 prev_n, prev_ref = n, r["ref_s"]
             elif "stopped" in r.get("ref_note", "") or "failed" in r.get("ref_note", ""):

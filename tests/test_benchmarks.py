@@ -230,6 +230,31 @@ def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
     assert rows[65536]["ref_note"].startswith("not run") and rows[262144]["ref_s"] is None
 
 
+def test_speed_names_the_size_whose_reference_failed(monkeypatch):
+    # after a failing reference the larger sizes are skipped and say why, not "estimated"
+    import argparse
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import speed
+    calls = []
+
+    def fake_child(args, timeout):
+        calls.append(args[:3])
+        if args[0] == "model":
+            return {"alone_s": 1.0, "batch_s_per_set": 1.0, "peak_mib": 100.0}
+        if args[2] == "256":
+            return {"ref_s": 0.5, "peak_mib": 50.0}
+        raise RuntimeError("child ['reference'] failed:\nMemoryError: 37 GiB")
+
+    monkeypatch.setattr(speed, "_run_child", fake_child)
+    a = argparse.Namespace(models=["poisson_disk"], sizes=[256, 1024, 4096], batch=32,
+                           repeats=1, threads=0, ref_budget=120.0)
+    rows = speed.measure(a)["poisson_disk"]["rows"]
+    assert [c[2] for c in calls if c[0] == "reference"] == ["256", "1024"]
+    assert rows[256]["ref_s"] == 0.5
+    assert rows[1024]["ref_note"] == "failed: MemoryError: 37 GiB"
+    assert rows[4096]["ref_note"] == "not run (failed at n = 1024)" and rows[4096]["ref_s"] is None
+
+
 def test_speed_starts_its_reference_estimate_from_the_kept_rows(monkeypatch):
     # gbn_blob's reference took 40 s a set at 1024 in an earlier run: at 4096 it would take
     # ~320 s, over the 120 s budget, so a run that starts at 4096 must not start it at all
