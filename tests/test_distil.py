@@ -429,6 +429,46 @@ def test_config_rejects_bad_spectrum_settings():
         DistilConfig(teacher="gbn", name="x", spectrum_examples=0)
 
 
+def test_config_rejects_bad_projection_settings():
+    with pytest.raises(ValueError, match="projection_weight must be >= 0, got -1.0"):
+        DistilConfig(teacher="gbn", name="x", projection_weight=-1.0)
+    with pytest.raises(ValueError, match=r"projection_sizes \(64,\)"):
+        DistilConfig(teacher="gbn", name="x", projection_weight=1.0, projection_sizes=(64,))
+    with pytest.raises(ValueError, match="projection_sets must be even and >= 2, got 3"):
+        DistilConfig(teacher="gbn", name="x", projection_sets=3)
+
+
+def test_projection_loss_scores_two_halves_and_logs_its_column(tiny_onnx, tmp_path,
+                                                               monkeypatch):
+    monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_distil(tiny_onnx, steps=2, log_every=1, projection_weight=10.0,
+                      projection_sizes=(8,), projection_sets=4, spectrum_radius=2.0)
+    d = Distiller(cfg, tmp_path / "run", progress=False)
+    figure, target = d.projections[8]
+    assert target.shape == (16,) and not d.spectra  # 2 sqrt(n) frequencies; no radial loss
+    # the target: the teacher's sets' mean axis spectrum
+    from diffsampler_rt.grid import decode
+    final = d.trajectories[8][-1].numpy() / float(d.teacher_card["offset_scale"])
+    pts = decode(final, stratified=d.teacher_card["embedding"] == "stratified")
+    np.testing.assert_allclose(target.numpy(), figure(torch.tensor(pts).float()).numpy(),
+                               rtol=1e-4, atol=1e-6)
+    d.teacher_card = {**d.teacher_card, "offset_scale": 1e4}  # as in the spectrum test
+    # the loss is the product of the two halves' differences from the target
+    state = d.gen.get_state()
+    with torch.no_grad():
+        sets = d._rollout_points(8, 4)
+        want = 10.0 * torch.mean((figure(sets[:2]) - target) * (figure(sets[2:]) - target))
+    d.gen.set_state(state)
+    loss = d.projection_loss(8)
+    assert torch.allclose(loss, want)
+    loss.backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in d.model.parameters())
+    d.model.zero_grad(set_to_none=True)
+    d.run()
+    header = (tmp_path / "run" / "log.csv").read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["loss_k4", "loss_k8", "projection_k8"]
+
+
 def test_the_rollout_is_the_runtimes_ddim(tiny_onnx, tmp_path, monkeypatch):
     # the spectrum loss differentiates the student's own sets: the rollout must be what the
     # runtime makes from the same starting noise with the same weights

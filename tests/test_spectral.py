@@ -6,7 +6,7 @@ torch = pytest.importorskip("torch")
 
 from diffsampler_rt.grid import decode  # noqa: E402
 from diffsampler_rt.spectrum import NUM_BINS, radial_spectrum  # noqa: E402
-from trainer.spectral import RadialSpectrum, grid_points  # noqa: E402
+from trainer.spectral import AxisSpectrum, RadialSpectrum, grid_points  # noqa: E402
 
 
 @pytest.mark.parametrize("k, bins, stratified, toroidal",
@@ -29,3 +29,27 @@ def test_torch_spectrum_has_gradients_and_checks_its_input():
         figure(torch.rand(2, 63, 2, dtype=torch.float64))
     with pytest.raises(ValueError, match="bins"):
         RadialSpectrum(64, 0)
+
+
+def test_axis_spectrum_is_the_2d_spectrum_on_its_axes():
+    pts = np.random.default_rng(3).random((4, 100, 2))
+    got = AxisSpectrum(100, 12)(torch.tensor(pts)).numpy()
+    j = np.arange(1, 13)
+    # P(f) = |sum exp(-2 pi i f . x)|^2 / n at f = (j, 0) and (0, j), over sets and both axes
+    want = np.mean([np.abs(np.exp(-2j * np.pi * j[None, :, None] * pts[:, None, :, a]).sum(-1)) ** 2
+                    for a in (0, 1)], axis=(0, 1)) / 100
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+    # a set on a 10 x 10 grid: its projections are 10 stacks, all power at multiples of 10
+    g = (np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(1, 100, 2) + 0.5) / 10
+    p = AxisSpectrum(100, 20)(torch.tensor(g)).numpy()
+    assert np.allclose(p[[9, 19]], 100.0) and np.allclose(np.delete(p, [9, 19]), 0.0, atol=1e-20)
+
+
+def test_axis_spectrum_has_gradients_and_checks_its_input():
+    pts = torch.rand(2, 16, 2, dtype=torch.float64, requires_grad=True)
+    figure = AxisSpectrum(16, 6)
+    torch.autograd.gradcheck(lambda p: figure(p), (pts,))
+    with pytest.raises(ValueError, match=r"\(B, 16, 2\)"):
+        figure(torch.rand(2, 15, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match="count"):
+        AxisSpectrum(16, 0)

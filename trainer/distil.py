@@ -23,7 +23,9 @@ of that size, or with ``spectrum_target = "examples"`` towards the sampler's own
 the student can end closer to the sampler than its teacher). ``spectrum_card`` makes those
 sets as the runtime will, under a card's noise shaping and imposed structure, so the loss
 scores what users get: LDBN's n-rooks imposition alone moved ldbn_fast's spectrum from
-0.010 to 0.015 (mean absolute difference at n = 1024).
+0.010 to 0.015 (mean absolute difference at n = 1024). ``projection_weight`` does the same
+for the spectrum on the axes (the power of the sets' x and y coordinates), which the radial
+bins average away and the star discrepancy weighs most.
 
 A guided teacher (card ``"guide"``, autoguidance) can be distilled with its guidance
 (``teacher_guidance``): its trajectories then follow (1 + w) eps_teacher - w eps_guide at
@@ -63,7 +65,7 @@ from .data import cache_dir, make_pool
 from .density import OLD_FLOOR
 from .drop_blocks import drop_res_blocks
 from .samplers import sample
-from .spectral import RadialSpectrum, grid_points
+from .spectral import AxisSpectrum, RadialSpectrum, grid_points
 from .train import (CHECKPOINT, load_checkpoint, optimiser_step, restore_state,
                     run_loop)
 from .unet import UNet, UNetConfig
@@ -150,9 +152,23 @@ class DistilConfig:
     #: ``"structure_guidance"`` steps and on the decoded set. The imposition (a sort, not
     #: differentiable) passes gradients straight through: the set moves with the net's output
     spectrum_card: str | dict[str, Any] | None = None
+    #: weight of the projection loss: the squared difference, over frequencies 1 ..
+    #: ``spectrum_radius`` sqrt(n), between the mean power spectrum of the student's sets'
+    #: x and y coordinates (``spectrum_sets`` sets made as for the spectrum loss) and the
+    #: target's (``spectrum_target``), at the grid sides ``projection_sizes``. The radial
+    #: bins average the axes away; a net on a k x k grid can leave the grid's period in its
+    #: sets' projections (sot_32_fast: power at j ~ k where SOT's peak lies below it), which
+    #: the star discrepancy sees. ``projection_sets`` rollouts a step, scored as two halves
+    #: (the product of their differences from the target: an unbiased estimate of the
+    #: squared difference of the means, where the square of one noisy mean would also
+    #: reward less power, whose noise is less)
+    projection_weight: float = 0.0
+    projection_sizes: tuple[int, ...] = (16,)
+    projection_sets: int = 32
 
     def __post_init__(self) -> None:
-        for name in ("sizes", "trajectories", "batch_sizes", "spectrum_sizes"):
+        for name in ("sizes", "trajectories", "batch_sizes", "spectrum_sizes",
+                     "projection_sizes"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.teacher_solver not in SOLVERS or self.teacher_solver == "ddpm":
             raise ValueError(f"teacher_solver must be a deterministic solver (ddim, dpmpp_2m), "
@@ -172,6 +188,13 @@ class DistilConfig:
         if self.spectrum_weight and not set(self.spectrum_sizes) <= set(self.sizes):
             raise ValueError(f"spectrum_sizes {self.spectrum_sizes} must be among sizes "
                              f"{self.sizes}")
+        if self.projection_weight < 0:
+            raise ValueError(f"projection_weight must be >= 0, got {self.projection_weight}")
+        if self.projection_weight and not set(self.projection_sizes) <= set(self.sizes):
+            raise ValueError(f"projection_sizes {self.projection_sizes} must be among sizes "
+                             f"{self.sizes}")
+        if self.projection_sets < 2 or self.projection_sets % 2:
+            raise ValueError(f"projection_sets must be even and >= 2, got {self.projection_sets}")
         if self.spectrum_sets < 1:
             raise ValueError(f"spectrum_sets must be >= 1, got {self.spectrum_sets}")
         if self.spectrum_target not in SPECTRUM_TARGETS:
@@ -346,9 +369,14 @@ class Distiller:
                                                                      self.teacher_sha1, k, n))
                              for k, n in zip(cfg.sizes, cfg.trajectories)}
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.rollout_card = self._rollout_card() if cfg.spectrum_weight else None
-        self.spectra = {k: self._spectrum_target(k) for k in cfg.spectrum_sizes
-                        if cfg.spectrum_weight}
+        self.rollout_card = (self._rollout_card()
+                             if cfg.spectrum_weight or cfg.projection_weight else None)
+        bins = int(round(cfg.spectrum_radius / BIN_WIDTH))
+        self.spectra = {k: self._target(RadialSpectrum(k * k, bins), k)
+                        for k in cfg.spectrum_sizes if cfg.spectrum_weight}
+        self.projections = {
+            k: self._target(AxisSpectrum(k * k, max(1, round(cfg.spectrum_radius * k))), k)
+            for k in cfg.projection_sizes if cfg.projection_weight}
         self.step = 0
         self.elapsed = 0.0
         self.devices = [self.device.type]  # every device the student has trained on
@@ -386,10 +414,10 @@ class Distiller:
                            stratified=self.teacher_card["embedding"] == "stratified",
                            toroidal=self.teacher_card.get("padding") == "circular")
 
-    def _spectrum_target(self, k: int) -> tuple[RadialSpectrum, torch.Tensor]:
-        """The spectrum figure at side k and the mean spectrum the student's sets are
-        pulled towards there (the teacher's sets or the sampler's, ``spectrum_target``)."""
-        figure = RadialSpectrum(k * k, int(round(self.cfg.spectrum_radius / BIN_WIDTH)))
+    def _target(self, figure: torch.nn.Module, k: int) -> tuple[torch.nn.Module, torch.Tensor]:
+        """A figure (a spectrum of sets of k*k points) and its mean over the sets the
+        student's are pulled towards at side k (the teacher's or the sampler's,
+        ``spectrum_target``)."""
         if self.cfg.spectrum_target == "examples":
             sets = torch.from_numpy(self._examples(k))
         else:
@@ -480,21 +508,37 @@ class Distiller:
             x = ab_n.sqrt() * x0 + (1 - ab_n).sqrt() * eps
         return x
 
-    def spectrum_loss(self, k: int) -> torch.Tensor:
-        """Squared difference of the student's mean spectrum (``spectrum_sets`` sets made
-        end to end) from the target's, weighted."""
-        figure, target = self.spectra[k]
-        grid = self.rollout(self._start_noise(k, self.cfg.spectrum_sets).to(self.device))
+    def _rollout_points(self, k: int, count: int) -> torch.Tensor:
+        """``count`` sets of k*k points the student makes end to end, differentiable (with
+        ``spectrum_card``, as the runtime makes them)."""
+        grid = self.rollout(self._start_noise(k, count).to(self.device))
         pts = self._points(grid)
         if self._imposed(k):  # the decoded set's structure, passed straight through
             moved = torch.from_numpy(self._imposed_points(grid)).to(pts)
             pts = pts + (moved - pts).detach()
+        return pts
+
+    def spectrum_loss(self, k: int) -> torch.Tensor:
+        """Squared difference of the student's mean spectrum (``spectrum_sets`` sets made
+        end to end) from the target's, weighted."""
+        figure, target = self.spectra[k]
+        pts = self._rollout_points(k, self.cfg.spectrum_sets)
         return self.cfg.spectrum_weight * torch.mean((figure(pts) - target) ** 2)
+
+    def projection_loss(self, k: int) -> torch.Tensor:
+        """Squared difference of the student's mean axis spectrum (its sets' projections)
+        from the target's, weighted."""
+        figure, target = self.projections[k]
+        half = self.cfg.projection_sets // 2
+        pts = self._rollout_points(k, 2 * half)
+        return self.cfg.projection_weight * torch.mean((figure(pts[:half]) - target)
+                                                       * (figure(pts[half:]) - target))
 
     def loss_names(self) -> list[str]:
         """The log's column for each loss :meth:`train_step` returns."""
         return ([f"loss_k{k}" for k in self.cfg.sizes]
-                + [f"spectrum_k{k}" for k in self.spectra])
+                + [f"spectrum_k{k}" for k in self.spectra]
+                + [f"projection_k{k}" for k in self.projections])
 
     def student_config(self):
         """The teacher's training config, renamed, with the student's sampling defaults (and
@@ -564,6 +608,8 @@ class Distiller:
                                self.cfg.loss_weighting, self.cfg.difference_weight)
             for k in self.spectra:
                 yield self.spectrum_loss(k)
+            for k in self.projections:
+                yield self.projection_loss(k)
 
         return optimiser_step(self, losses())
 

@@ -60,6 +60,32 @@ class RadialSpectrum(torch.nn.Module):
         return member @ power.reshape(-1)
 
 
+class AxisSpectrum(torch.nn.Module):
+    """Mean power spectrum of a batch's coordinate projections, frequencies 1 .. ``count``.
+
+    P(j) = |sum_i exp(-2 pi i j x_i)|^2 / n over each set's x and over its y coordinates,
+    averaged over both and over the sets: the 2-d spectrum on its axes, f = (j, 0) and
+    (0, j), which the radial bins mix with every other direction. It is what a set's
+    projections carry, and what the star discrepancy L2* weighs most.
+    """
+
+    def __init__(self, n: int, count: int):
+        super().__init__()
+        if count < 1:
+            raise ValueError(f"count must be >= 1, got {count}")
+        self.n, self.count = n, count
+        self.register_buffer("f", torch.tensor(2 * np.pi * np.arange(1, count + 1),
+                                               dtype=torch.float64))
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        """points (B, n, 2) -> the batch's mean axis spectrum, shape (count,)."""
+        if points.shape[-2:] != (self.n, 2):
+            raise ValueError(f"points must have shape (B, {self.n}, 2), got {tuple(points.shape)}")
+        a = self.f.to(points.dtype)[None, :, None, None] * points[:, None, :, :]  # (B, J, n, 2)
+        power = a.cos().sum(dim=2) ** 2 + a.sin().sum(dim=2) ** 2  # (B, J, 2)
+        return power.mean(dim=(0, 2)) / self.n
+
+
 def grid_points(grid: torch.Tensor, *, stratified: bool = False,
                 toroidal: bool = False) -> torch.Tensor:
     """Offsets (B, 2, k, k) in cell units -> points (B, k*k, 2), as
