@@ -207,49 +207,46 @@ def test_speed_report_dates_each_models_latest_run():
     assert _dates_text({"a": {"rows": {}}}, "2026-12-02") == "2026-12-02"
 
 
-def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
-    # a slow reference stopped at the first size timed must not be started (and stopped
-    # after 4x the budget) again at every larger size
+def _speed_rows(monkeypatch, model: str, sizes: list[int], reference) -> tuple[dict, list[str]]:
+    """speed.measure's rows for ``model`` with its children faked: every model timing 1 s,
+    the reference's result ``reference(n)`` (None: stopped; an exception: failed); and the
+    sizes at which the reference was started."""
     import argparse
     sys.path.insert(0, str(ROOT))
     from benchmarks import speed
-    calls = []
+    started = []
 
     def fake_child(args, timeout):
-        calls.append(args[:3])
         if args[0] == "model":
             return {"alone_s": 1.0, "batch_s_per_set": 1.0, "peak_mib": 100.0}
-        return None  # the reference ran past its timeout
+        started.append(args[2])
+        return reference(int(args[2]))
 
     monkeypatch.setattr(speed, "_run_child", fake_child)
-    a = argparse.Namespace(models=["gbn_blob"], sizes=[16384, 65536, 262144], batch=32,
-                           repeats=1, threads=0, ref_budget=120.0)
-    rows = speed.measure(a)["gbn_blob"]["rows"]
-    assert [c for c in calls if c[0] == "reference"] == [["reference", "gbn_blob", "16384"]]
+    a = argparse.Namespace(models=[model], sizes=sizes, batch=32, repeats=1, threads=0,
+                           ref_budget=120.0)
+    return speed.measure(a)[model]["rows"], started
+
+
+def test_speed_skips_the_reference_beyond_one_that_was_stopped(monkeypatch):
+    # a slow reference stopped at the first size timed must not be started (and stopped
+    # after 4x the budget) again at every larger size
+    rows, started = _speed_rows(monkeypatch, "gbn_blob", [16384, 65536, 262144],
+                                lambda n: None)  # the reference ran past its timeout
+    assert started == ["16384"]
     assert "stopped" in rows[16384]["ref_note"]
     assert rows[65536]["ref_note"].startswith("not run") and rows[262144]["ref_s"] is None
 
 
 def test_speed_names_the_size_whose_reference_failed(monkeypatch):
     # after a failing reference the larger sizes are skipped and say why, not "estimated"
-    import argparse
-    sys.path.insert(0, str(ROOT))
-    from benchmarks import speed
-    calls = []
-
-    def fake_child(args, timeout):
-        calls.append(args[:3])
-        if args[0] == "model":
-            return {"alone_s": 1.0, "batch_s_per_set": 1.0, "peak_mib": 100.0}
-        if args[2] == "256":
+    def reference(n):
+        if n == 256:
             return {"ref_s": 0.5, "peak_mib": 50.0}
         raise RuntimeError("child ['reference'] failed:\nMemoryError: 37 GiB")
 
-    monkeypatch.setattr(speed, "_run_child", fake_child)
-    a = argparse.Namespace(models=["poisson_disk"], sizes=[256, 1024, 4096], batch=32,
-                           repeats=1, threads=0, ref_budget=120.0)
-    rows = speed.measure(a)["poisson_disk"]["rows"]
-    assert [c[2] for c in calls if c[0] == "reference"] == ["256", "1024"]
+    rows, started = _speed_rows(monkeypatch, "poisson_disk", [256, 1024, 4096], reference)
+    assert started == ["256", "1024"]
     assert rows[256]["ref_s"] == 0.5
     assert rows[1024]["ref_note"] == "failed: MemoryError: 37 GiB"
     assert rows[4096]["ref_note"] == "not run (failed at n = 1024)" and rows[4096]["ref_s"] is None

@@ -154,7 +154,7 @@ class DistilConfig:
     spectrum_card: str | dict[str, Any] | None = None
     #: weight of the projection loss: the squared difference, over frequencies 1 ..
     #: ``spectrum_radius`` sqrt(n), between the mean power spectrum of the student's sets'
-    #: x and y coordinates (``spectrum_sets`` sets made as for the spectrum loss) and the
+    #: x and y coordinates (sets made as for the spectrum loss, with its card) and the
     #: target's (``spectrum_target``), at the grid sides ``projection_sizes``. The radial
     #: bins average the axes away; a net on a k x k grid can leave the grid's period in its
     #: sets' projections (sot_32_fast: power at j ~ k where SOT's peak lies below it), which
