@@ -163,6 +163,7 @@ def measure(a, kept: dict | None = None) -> dict:
             # reference sampler: skip when the estimate from the previous size is over budget
             if prev_ref is not None:
                 ref_est = prev_ref * (n / prev_n) ** 1.5
+            gave_up = False  # this size's reference was stopped or failed
             if prev_ref is None or ref_est <= a.ref_budget:
                 try:
                     ref = _run_child(["reference", sampler, str(n)],
@@ -171,6 +172,7 @@ def measure(a, kept: dict | None = None) -> dict:
                     ref = {"failed": str(exc).strip().splitlines()[-1][:120]}
                 r["ref_s"] = None if ref is None else ref.get("ref_s")
                 r["ref_peak_mib"] = None if ref is None else ref.get("peak_mib")
+                gave_up = ref is None or "failed" in ref
                 if ref is None:
                     r["ref_note"] = f"> {4 * a.ref_budget:.0f} s (stopped)"
                 elif "failed" in ref:
@@ -182,7 +184,7 @@ def measure(a, kept: dict | None = None) -> dict:
                                  else f"not run (failed at n = {failed_at})")
             if r.get("ref_s") is not None:
                 prev_n, prev_ref = n, r["ref_s"]
-            elif "stopped" in r.get("ref_note", "") or "failed" in r.get("ref_note", ""):
+            elif gave_up:
                 # a stopped (or failed) size must also skip the larger ones, not run each in turn
                 prev_n, prev_ref = n, 4 * a.ref_budget
             rows[n] = r
