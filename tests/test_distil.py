@@ -414,28 +414,20 @@ def test_distillation_recipes_load_and_later_stages_chain():
         assert card["distillation"]["config"]["student_steps"] == cfg.student_steps, name
 
 
-def test_config_rejects_bad_spectrum_settings():
-    with pytest.raises(ValueError, match="spectrum_weight"):
-        DistilConfig(teacher="gbn", name="x", spectrum_weight=-1.0)
-    with pytest.raises(ValueError, match=r"spectrum_sizes \(64,\)"):
-        DistilConfig(teacher="gbn", name="x", spectrum_weight=1.0, spectrum_sizes=(64,))
-    with pytest.raises(ValueError, match="spectrum_sets"):
-        DistilConfig(teacher="gbn", name="x", spectrum_sets=0)
-    with pytest.raises(ValueError, match="spectrum_radius"):
-        DistilConfig(teacher="gbn", name="x", spectrum_radius=6.0)
-    with pytest.raises(ValueError, match="'sampler'"):
-        DistilConfig(teacher="gbn", name="x", spectrum_target="sampler")
-    with pytest.raises(ValueError, match="spectrum_examples must be >= 1, got 0"):
-        DistilConfig(teacher="gbn", name="x", spectrum_examples=0)
-
-
-def test_config_rejects_bad_projection_settings():
-    with pytest.raises(ValueError, match="projection_weight must be >= 0, got -1.0"):
-        DistilConfig(teacher="gbn", name="x", projection_weight=-1.0)
-    with pytest.raises(ValueError, match=r"projection_sizes \(64,\)"):
-        DistilConfig(teacher="gbn", name="x", projection_weight=1.0, projection_sizes=(64,))
-    with pytest.raises(ValueError, match="projection_sets must be even and >= 2, got 3"):
-        DistilConfig(teacher="gbn", name="x", projection_sets=3)
+@pytest.mark.parametrize("settings, message", [
+    (dict(spectrum_weight=-1.0), "spectrum_weight"),
+    (dict(spectrum_weight=1.0, spectrum_sizes=(64,)), r"spectrum_sizes \(64,\)"),
+    (dict(spectrum_sets=0), "spectrum_sets"),
+    (dict(spectrum_radius=6.0), "spectrum_radius"),
+    (dict(spectrum_target="sampler"), "'sampler'"),
+    (dict(spectrum_examples=0), "spectrum_examples must be >= 1, got 0"),
+    (dict(projection_weight=-1.0), "projection_weight must be >= 0, got -1.0"),
+    (dict(projection_weight=1.0, projection_sizes=(64,)), r"projection_sizes \(64,\)"),
+    (dict(projection_sets=3), "projection_sets must be even and >= 2, got 3"),
+])
+def test_config_rejects_bad_spectrum_and_projection_settings(settings, message):
+    with pytest.raises(ValueError, match=message):
+        DistilConfig(teacher="gbn", name="x", **settings)
 
 
 def test_projection_loss_scores_two_halves_and_logs_its_column(tiny_onnx, tmp_path,

@@ -21,14 +21,16 @@ def test_torch_spectrum_is_the_runtimes_figure(k, bins, stratified, toroidal):
     np.testing.assert_allclose(got, radial_spectrum(decoded)[1][:bins], rtol=1e-9, atol=1e-12)
 
 
-def test_torch_spectrum_has_gradients_and_checks_its_input():
-    pts = torch.rand(2, 64, 2, dtype=torch.float64, requires_grad=True)
-    figure = RadialSpectrum(64, 10)
+@pytest.mark.parametrize("figure_class, n, size, size_name",
+                         [(RadialSpectrum, 64, 10, "bins"), (AxisSpectrum, 16, 6, "count")])
+def test_torch_figures_have_gradients_and_check_their_input(figure_class, n, size, size_name):
+    pts = torch.rand(2, n, 2, dtype=torch.float64, requires_grad=True)
+    figure = figure_class(n, size)
     torch.autograd.gradcheck(lambda p: figure(p), (pts,))
-    with pytest.raises(ValueError, match=r"\(B, 64, 2\)"):
-        figure(torch.rand(2, 63, 2, dtype=torch.float64))
-    with pytest.raises(ValueError, match="bins"):
-        RadialSpectrum(64, 0)
+    with pytest.raises(ValueError, match=rf"\(B, {n}, 2\)"):
+        figure(torch.rand(2, n - 1, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match=size_name):
+        figure_class(n, 0)
 
 
 def test_axis_spectrum_is_the_2d_spectrum_on_its_axes():
@@ -42,13 +44,3 @@ def test_axis_spectrum_is_the_2d_spectrum_on_its_axes():
     g = (np.stack(np.meshgrid(np.arange(10), np.arange(10)), -1).reshape(1, 100, 2) + 0.5) / 10
     p = AxisSpectrum(100, 20)(torch.tensor(g)).numpy()
     assert np.allclose(p[[9, 19]], 100.0) and np.allclose(np.delete(p, [9, 19]), 0.0, atol=1e-20)
-
-
-def test_axis_spectrum_has_gradients_and_checks_its_input():
-    pts = torch.rand(2, 16, 2, dtype=torch.float64, requires_grad=True)
-    figure = AxisSpectrum(16, 6)
-    torch.autograd.gradcheck(lambda p: figure(p), (pts,))
-    with pytest.raises(ValueError, match=r"\(B, 16, 2\)"):
-        figure(torch.rand(2, 15, 2, dtype=torch.float64))
-    with pytest.raises(ValueError, match="count"):
-        AxisSpectrum(16, 0)

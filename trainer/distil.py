@@ -529,8 +529,8 @@ class Distiller:
         """Squared difference of the student's mean axis spectrum (its sets' projections)
         from the target's, weighted."""
         figure, target = self.projections[k]
-        half = self.cfg.projection_sets // 2
-        pts = self._rollout_points(k, 2 * half)
+        half = self.cfg.projection_sets // 2  # even (checked by the config)
+        pts = self._rollout_points(k, self.cfg.projection_sets)
         return self.cfg.projection_weight * torch.mean((figure(pts[:half]) - target)
                                                        * (figure(pts[half:]) - target))
 
