@@ -52,6 +52,7 @@ from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets,  # noqa: E4
                                example_reference, model_hash, reference_path, seed_curve)
 from diffsampler_rt.guidance import describe as describe_guide  # noqa: E402
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
+from diffsampler_rt.projections import describe as describe_projection  # noqa: E402
 from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
 from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
 from diffsampler_rt.structure import describe_block  # noqa: E402
@@ -708,6 +709,9 @@ def model_card_text(c: dict) -> str:
             + ("; density deviations at large scales scaled by 1 - gain: "
                f"{describe_even(c['even_out'])} (diffsampler_rt.low_frequencies)"
                if c.get("even_out") else "")
+            + ("; each axis's deviations from evenly spread positions scaled: "
+               f"{describe_projection(c['projection_gain'])} (diffsampler_rt.projections)"
+               if c.get("projection_gain") is not None else "")
             + (f"; pairs closer than {describe_spacing(c['min_spacing'])} pushed apart "
                "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
 

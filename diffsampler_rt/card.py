@@ -16,6 +16,7 @@ from .errors import ModelFormatError
 from .guidance import settings_problem as guide_problem
 from .low_frequencies import restore_cut_problem
 from .low_frequencies import settings_problem as even_problem
+from .projections import settings_problem as projection_problem
 from .schedule import betas
 from .sliced_ot import settings_problem as sliced_problem
 from .solvers import SOLVERS
@@ -141,6 +142,8 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
             problem := temperature_problem(card["structure_temperature"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "even_out" in card and (problem := even_problem(card["even_out"])):
+        raise ModelFormatError(f"{source}: model card field {problem}")
+    if "projection_gain" in card and (problem := projection_problem(card["projection_gain"])):
         raise ModelFormatError(f"{source}: model card field {problem}")
     if "restore_cut" in card and (problem := restore_cut_problem(card["restore_cut"])):
         raise ModelFormatError(f"{source}: model card field {problem}")

@@ -23,6 +23,8 @@ from .lattice import nearest_rank1_lattice
 from .low_frequencies import RESTORE_CUT, even_out
 from .metadata import WireFormatError, read_metadata
 from .per_size import cut_at, gain_at
+from .projections import gain_at as projection_gain_at
+from .projections import spread_projections
 from .schedule import alphas_cumprod, timesteps
 from .shards import Shards, layout, usable_cores
 from .solvers import SOLVERS, project_x0, solve
@@ -220,6 +222,10 @@ class Model:
             ``"even_out"`` (GBN, SOT students, at n = 4096 Poisson-disk models and beyond
             4096 ldbn(_fast): their sets' density deviations at large scales shrunk, or
             amplified, by a smooth move; :mod:`diffsampler_rt.low_frequencies`),
+            ``"projection_gain"`` (sot_32_fast at 256: the deviations of each axis's
+            sorted coordinates from evenly spread positions scaled, so that the x and y
+            projections are as uneven as the sampler's; not where a structure is imposed;
+            :mod:`diffsampler_rt.projections`),
             ``"restore_cut"`` (GBN models 1, sot /
             sot_fast 0.4: where n is not a square, the thinned set's density restored from
             the full set's up to that many sqrt(n) instead of the runtime's 0.25) and
@@ -322,6 +328,9 @@ class Model:
         # where a structure is imposed the evening comes before it, on the full k x k set
         evened = k * k if imposed else n
         evening = (gain_at(even, evened), cut_at(even, evened)) if even else None
+        spread = (self.card.get("projection_gain") if structure and not (imposed or relattice)
+                  else None)
+        projection_gain = projection_gain_at(spread, n) if spread is not None else 1.0
         # a thinned set's large scales restored from its full one up to this (a card's own
         # cut is a tuning like the ones above; without them the runtime's default)
         restore = self.card.get("restore_cut", RESTORE_CUT) if structure else RESTORE_CUT
@@ -331,14 +340,14 @@ class Model:
             self.guide()  # a missing or mismatched guide fails here, before any work
         return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
                             imposed, relattice, spacing, sliced, noise_shape, evening, restore,
-                            weight, sequence)
+                            weight, sequence, projection_gain)
 
     def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
                 ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
                 spacing: float | None, sliced: int,
                 noise_shape: tuple[float, float, float] | None,
                 evening: tuple[float, float] | None, restore: float, weight: float,
-                sequence: bool):
+                sequence: bool, projection_gain: float = 1.0):
         # one child stream per set: results do not depend on how sets are batched
         streams = rng.spawn(c)
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -398,6 +407,8 @@ class Model:
                              step=self.card["sliced_ot"].get("step", 1.0))
             if evening is not None and not imposed:  # (gain, cut) of the card's "even_out"
                 pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
+            if projection_gain != 1.0:  # the card's "projection_gain" (no structure here)
+                pts = spread_projections(pts, projection_gain)
             if spacing is not None and not imposed:
                 pts = enforce_min_spacing(pts, spacing, torus=toroidal)
             # a non-uniform model's net makes the sets in the uniform square

@@ -7,8 +7,8 @@
 [--structure-runs R|none]
 [--sliced-ot K|N:K,...|none [--sliced-ot-directions D] [--sliced-ot-step S]] [--min-spacing C|N:C,...|none]
 [--coarse-noise G|N:G,...|none [--coarse-noise-cut C]]
-[--even-out G|N:G,...|none [--even-out-cut C]] [--restore-cut C|none]
-[--guide NAME|none [--guide-weight W|N:W,...]]``: change the sampling defaults in an
+[--even-out G|N:G,...|none [--even-out-cut C]] [--projection-gain G|N:G,...|none]
+[--restore-cut C|none] [--guide NAME|none [--guide-weight W|N:W,...]]``: change the sampling defaults in an
 exported model's card.
 
 ``python -m export density-floor MODEL.onnx --floor F``: re-tabulate a non-uniform model's
@@ -108,6 +108,11 @@ def set_defaults_main(argv: list[str]) -> int:
                       "shrink each set's density deviations from uniform at large scales "
                       "by the factor 1 - G (G < 0 amplifies them)",
                       "below C sqrt(n) cycles across the square, 0 < C <= 2 (default 1")
+    p.add_argument("--projection-gain", metavar="G|N:G,N:G,...|none",
+                   help="scale each axis's deviations of the sorted coordinates from evenly "
+                        "spread positions by G, 0.5 <= G <= 1.5 (> 1: less even x and y "
+                        "projections; not where a structure is imposed); N:G pairs give G "
+                        "per size (linear in log n between them); none: remove")
     p.add_argument("--restore-cut", metavar="C|none",
                    help="where n is not a square, restore the thinned set's density from the "
                         "full set's below C sqrt(n), 0 < C <= 2 (none: the runtime's "
@@ -148,6 +153,10 @@ def set_defaults_main(argv: list[str]) -> int:
     if spacing is not None and spacing != "none":
         spacing = _table_arg(spacing, "c", float, "--min-spacing", "a number", "N:C")
     restore = _number_or_none(args.restore_cut, "--restore-cut")
+    projection = args.projection_gain
+    if projection is not None and projection != "none":
+        projection = _table_arg(projection, "gain", float, "--projection-gain", "a number",
+                                "N:G")
     guide = args.guide
     if args.guide_weight is not None and (guide is None or guide == "none"):
         raise UsageError("--guide-weight needs --guide NAME")
@@ -160,6 +169,7 @@ def set_defaults_main(argv: list[str]) -> int:
     from diffsampler_rt.guidance import describe as describe_guide
     from diffsampler_rt.low_frequencies import RESTORE_CUT
     from diffsampler_rt.low_frequencies import describe as describe_even
+    from diffsampler_rt.projections import describe as describe_projection
     from diffsampler_rt.sliced_ot import describe as describe_sliced
     from diffsampler_rt.spacing import describe as describe_spacing
 
@@ -172,13 +182,15 @@ def set_defaults_main(argv: list[str]) -> int:
                                           else args.structure_prefix == "on"),
                         structure_runs=_runs_arg(args.structure_runs),
                         sliced_ot=sliced, min_spacing=spacing, coarse_noise=coarse,
-                        even_out=even, restore_cut=restore, guide=guide)
+                        even_out=even, projection_gain=projection, restore_cut=restore,
+                        guide=guide)
     print(f"{args.model}: default solver {card.get('default_solver', 'ddim')}, "
           f"{card['default_steps']} steps, structure {structure_text(card)}, "
           f"sliced OT {describe_sliced(card.get('sliced_ot'))}, "
           f"min spacing {describe_spacing(card.get('min_spacing'))}, "
           f"coarse noise {describe_coarse(card.get('coarse_noise'))}, "
           f"even out {describe_even(card.get('even_out'))}, "
+          f"projection {describe_projection(card.get('projection_gain'))}, "
           f"restore cut {card.get('restore_cut', RESTORE_CUT):g} sqrt(n), "
           f"guide {describe_guide(card.get('guide'))}")
     return 0

@@ -54,16 +54,18 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
                  min_spacing: float | dict | str | None = None,
                  coarse_noise: dict | str | None = None,
                  even_out: dict | str | None = None,
+                 projection_gain: float | dict | str | None = None,
                  restore_cut: float | str | None = None,
                  guide: dict | str | None = None) -> dict:
     """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
     ``structure_min_side``, ``structure_guidance``, ``structure_sides``,
     ``structure_temperature``, ``structure_block``, ``structure_prefix`` and
     ``structure_runs``) / ``sliced_ot`` / ``min_spacing`` / ``coarse_noise`` / ``even_out`` /
-    ``restore_cut`` / ``guide`` of the card in ``path`` (``"none"`` removes a structure with
+    ``projection_gain`` / ``restore_cut`` / ``guide`` of the card in ``path`` (``"none"`` removes a structure with
     its seven settings, runs,
     a temperature, a
-    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a restore cut, which
+    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a projection gain,
+    a restore cut, which
     then is the runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
     ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
     model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
@@ -108,6 +110,7 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
             card["sliced_ot"] = {"directions": 64, **kept, **sliced_ot}
         _put(card, "coarse_noise", coarse_noise)
         _put(card, "even_out", even_out)
+        _put(card, "projection_gain", projection_gain)
         _put(card, "restore_cut", restore_cut)
         if guide == "none":
             card.pop("guide", None)

@@ -3,8 +3,8 @@ and wrong shapes with an error naming them (they used to pass NaNs through as ga
 import numpy as np
 import pytest
 
-from diffsampler_rt import (density, elimination, lattice, low_frequencies, sliced_ot, spacing,
-                            structure)
+from diffsampler_rt import (density, elimination, lattice, low_frequencies, projections,
+                            sliced_ot, spacing, structure)
 from diffsampler_rt._validate import unit_points
 
 TABLE = {"x_cdf": [0.0, 0.25, 1.0], "y_cdf": [[0.0, 0.5, 1.0], [0.0, 0.5, 1.0]]}
@@ -27,6 +27,7 @@ FUNCTIONS = {
     "impose_dyadic_net": lambda p: structure.impose_dyadic_net(p, K),
     "polish": lambda p: sliced_ot.polish(p[None], 2, 8, [np.random.default_rng(0)]),
     "even_out": lambda p: low_frequencies.even_out(p, 0.5, cut=0.5),
+    "spread_projections": lambda p: projections.spread_projections(p, 1.1),
     "restore_low_frequencies": lambda p: low_frequencies.restore_low_frequencies(p[:50], p),
     "warp": lambda p: density.warp(p, TABLE),
     "unwarp": lambda p: density.unwarp(p, TABLE),
