@@ -1,6 +1,6 @@
 """Card settings given per trained size (``"n": [...]`` beside the values): linear in log n
-between the listed sizes, the end values beyond. Used by ``min_spacing``, ``sliced_ot``,
-``coarse_noise`` and ``even_out`` (the last two share the form of a gain table:
+between the listed sizes, the end values beyond. Used by ``min_spacing``, ``projection_gain``,
+``sliced_ot``, ``coarse_noise`` and ``even_out`` (the last two share the form of a gain table:
 ``{"cut": C, "gain": G}`` or ``{"cut": C, "n": [sizes], "gain": [G per size]}``, where the
 cut may be a list per size too: ``"cut": [C per size]``)."""
 from __future__ import annotations
@@ -32,6 +32,12 @@ def describe(sizes: Sequence[int], values: Sequence[str], what: str = "") -> str
 def finite_number(v: Any) -> bool:
     """A real number (not a bool), finite."""
     return not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
+
+
+def value_at(spec: float | dict, key: str, n: int) -> float:
+    """The value at n points of a card setting that is a number or a per-size table
+    ``{"n": [sizes], key: [values]}`` (``min_spacing``'s "c", ``projection_gain``'s "gain")."""
+    return _table_value(spec, key, n) if isinstance(spec, dict) else float(spec)
 
 
 def gain_at(spec: dict, n: int) -> float:

@@ -76,9 +76,7 @@ def spread_projections(points: np.ndarray, gain: float) -> np.ndarray:
 
 def gain_at(spec: float | dict, n: int) -> float:
     """The gain at n points of a card's ``"projection_gain"`` (a number or a table)."""
-    if isinstance(spec, dict):
-        return per_size.at(spec["n"], spec["gain"], n)
-    return float(spec)
+    return per_size.value_at(spec, "gain", n)
 
 
 def describe(spec: float | dict | None) -> str:

@@ -36,9 +36,7 @@ _OVERSHOOT = 0.01
 
 def coefficient(spec: float | dict, n: int) -> float:
     """c at n points for a card's ``min_spacing``: a number, or a per-size table."""
-    if isinstance(spec, dict):
-        return per_size.at(spec["n"], spec["c"], n)
-    return float(spec)
+    return per_size.value_at(spec, "c", n)
 
 
 def describe(spec: float | dict | None) -> str:

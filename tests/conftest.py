@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -27,6 +28,18 @@ def tiny_config(name: str = "tiny", sampler: str = "sobol_owen", embedding: str 
         unet=UNetConfig(**{**TINY_UNET, **unet}), steps=6, warmup_steps=2,
         checkpoint_every_s=1e9, log_every=1, default_sample_steps=5,
         default_solver="ddim")
+
+
+@pytest.fixture
+def bundled_copy(tmp_path):
+    """A function: a bundled model's file copied to tmp_path / "m.onnx" (its card free to
+    edit with set-defaults); returns the copy's path."""
+    def copy(name: str) -> Path:
+        import diffsampler_rt
+        path = tmp_path / "m.onnx"
+        shutil.copy(diffsampler_rt.model.resolve(name), path)
+        return path
+    return copy
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,6 @@
 """Smooth moves that set a point set's large scales (diffsampler_rt.low_frequencies)."""
 import doctest
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -56,11 +55,10 @@ def test_card_cut_per_size():
         assert match in settings_problem(bad)
 
 
-def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
+def test_card_even_out_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("gbn_fast")
-    path = tmp_path / "m.onnx"
-    shutil.copy(src, path)
+    path = bundled_copy("gbn_fast")
     assert export_main(["set-defaults", str(path), "--even-out", "none"]) == 0
     plain = diffsampler_rt.generate(path, 256, 2, seed=4)
     assert export_main(["set-defaults", str(path), "--even-out", "0.3",
@@ -99,11 +97,10 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(tmp_path, capsys)
         parse_card({CARD_KEY: json.dumps(bad)}, "m.onnx")
 
 
-def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
+def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("gbn_fast")
-    path = tmp_path / "m.onnx"
-    shutil.copy(src, path)
+    path = bundled_copy("gbn_fast")
     assert export_main(["set-defaults", str(path), "--restore-cut", "none"]) == 0
     assert "restore cut 0.25 sqrt(n)" in capsys.readouterr().out
     assert "restore_cut" not in diffsampler_rt.load(path).card

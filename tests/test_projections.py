@@ -2,7 +2,6 @@
 ``"projection_gain"``."""
 import doctest
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -79,11 +78,10 @@ def test_card_table_validation_and_words():
     assert projections.describe(spec) == "gain 1 / 1.1 / 1 at n = 64 / 256 / 576 (log-linear)"
 
 
-def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(tmp_path, capsys):
+def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("sot_32_fast")
-    path = tmp_path / "m.onnx"
-    shutil.copy(src, path)
+    path = bundled_copy("sot_32_fast")
     assert export_main(["set-defaults", str(path), "--projection-gain", "none"]) == 0
     assert "projection none" in capsys.readouterr().out
     assert "projection_gain" not in diffsampler_rt.load(path).card
@@ -109,11 +107,10 @@ def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(tmp_path, 
         parse_card({CARD_KEY: json.dumps({**card, "projection_gain": "x"})}, "m.onnx")
 
 
-def test_not_applied_where_a_structure_is_imposed(tmp_path):
+def test_not_applied_where_a_structure_is_imposed(bundled_copy):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("ldbn_fast")  # n-rooks at 256
-    path = tmp_path / "m.onnx"
-    shutil.copy(src, path)
+    path = bundled_copy("ldbn_fast")
     assert export_main(["set-defaults", str(path), "--projection-gain", "1.3"]) == 0
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 1, seed=2),
                                   diffsampler_rt.generate(src, 256, 1, seed=2))
