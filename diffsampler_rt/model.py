@@ -13,27 +13,15 @@ import onnxruntime as ort
 from . import _validate
 from ._progress import Progress
 from .card import CARD_KEY, parse_card
-from .coarse_noise import shape_noise, shaping
 from .density import warp
-from .elimination import eliminate, thin
 from .errors import ModelFormatError, ModelNotFoundError, UnknownModelError
-from .grid import decode, encode_stratified, wrap
-from .guidance import check_compatible, guide_path, guided, weight_at
-from .lattice import nearest_rank1_lattice
-from .low_frequencies import RESTORE_CUT, even_out
+from .finish import pipeline as finishing
+from .grid import decode, wrap
+from .guidance import check_compatible, guide_path
 from .metadata import WireFormatError, read_metadata
-from .per_size import cut_at, gain_at
-from .projections import gain_at as projection_gain_at
-from .projections import spread_projections
 from .schedule import alphas_cumprod, timesteps
 from .shards import Shards, layout, usable_cores
-from .solvers import SOLVERS, project_x0, solve
-from .sliced_ot import iterations_at, polish
-from .spacing import enforce_min_spacing, radius
-from .sobol_orbit import _orbit as impose_sobol_unchecked
-from .sobol_orbit import first_points
-from .structure import _impose as impose_unchecked
-from .structure import applies, block_at
+from .solvers import SOLVERS, solve
 
 MODELS_DIR = Path(__file__).parent / "models"
 #: points evaluated per onnxruntime call when generating many sets
@@ -113,7 +101,7 @@ class Model:
         # workers spin for a while after each run and would take those cores (sot_fast,
         # n = 1024, batch of 32: 33-34 ms a set without spinning, 34-52 ms with it); a
         # guided model's network takes turns with its guide's in the same way
-        quiet = _quiet or _alternates(self.card)  # _quiet: a guide (_cached_guide)
+        quiet = _quiet or finishing.shares_cores(self.card["pipeline"])  # _quiet: a guide (_cached_guide)
         if session is None or quiet:
             session = self._session(session_options(threads, spinning=not quiet))
         self.session = session
@@ -125,20 +113,14 @@ class Model:
         shards, each = layout(usable_cores() if threads is None else threads)
         self._shards = (Shards(lambda: self._session(session_options(each, spinning=not quiet)),
                                shards) if shards >= 2 else None)
-        self._guide: Model | None = None
 
-    def guide(self) -> "Model | None":
-        """The model this one's card is guided by (``"guide"``, loaded on first use;
-        :mod:`diffsampler_rt.guidance`), or None."""
-        spec = self.card.get("guide")
-        if spec is None:
-            return None
-        if self._guide is None:
-            path = guide_path(spec, self.path, MODELS_DIR)
-            guide = _cached_guide(str(path), path.stat().st_mtime, self._threads)
-            check_compatible(self.card, guide.card, str(self.path))
-            self._guide = guide
-        return self._guide
+    def guide(self, spec: dict) -> "Model":
+        """The model a ``guide`` step names (loaded once per file; checked to share this
+        model's schedule and embedding; :mod:`diffsampler_rt.guidance`)."""
+        path = guide_path(spec, self.path, MODELS_DIR)
+        guide = _cached_guide(str(path), path.stat().st_mtime, self._threads)
+        check_compatible(self.card, guide.card, str(self.path))
+        return guide
 
     def _session(self, opts: "ort.SessionOptions") -> "ort.InferenceSession":
         try:
@@ -197,60 +179,14 @@ class Model:
         progress : bool
             Show a progress bar on stderr.
         structure : bool
-            Restore what the sampler has by construction, as the model card says:
-            ``"structure": "dyadic_net"`` (sobol_owen: every set of 2^m points, k a power
-            of two, made a (0, m, 2)-net without moving any point out of its grid cell;
-            :mod:`diffsampler_rt.structure`; with ``"structure_prefix"``, a set of n points,
-            n not a power of four, is the first n points in Sobol' order of a net of the
-            next power-of-four size imposed onto the Owen-scrambled Sobol' nets, as the
-            first n points of the sequence are; :mod:`diffsampler_rt.sobol_orbit`),
-            ``"structure": "n_rooks"`` (ldbn: both 1-d projections stratified at
-            power-of-two k >= 16, also imposed on the clean-set prediction of the last
-            ``"structure_guidance"`` solver steps so that the net arranges its sets
-            around it; with ``"structure_block"``, at k = 64 and 128 the
-            aligned halves of every column and row, and their halves down to 32 cells,
-            stratified at their own sub-strip widths too, as LDBN's are; with
-            ``"structure_runs"``, at sides that are not powers of two, every run of that
-            many cells of a column and row in distinct sub-strips of its own width),
-            ``"structure": "rank1_lattice"`` (lattice models: each set replaced by the
-            rank-1 lattice it is closest to, read off its power spectrum, under a uniformly
-            random shift, at the grid sides in
-            ``"structure_sides"``;
-            :mod:`diffsampler_rt.lattice`), ``"sliced_ot"`` (SOT models: a few of the
-            sampler's own sliced-OT iterations from the network's set, which take out its
-            excess low-frequency power at large n; :mod:`diffsampler_rt.sliced_ot`),
-            ``"even_out"`` (GBN, SOT students, at n = 4096 Poisson-disk models and beyond
-            4096 ldbn(_fast): their sets' density deviations at large scales shrunk, or
-            amplified, by a smooth move; :mod:`diffsampler_rt.low_frequencies`),
-            ``"projection_gain"`` (sot_32_fast at 256: the deviations of each axis's
-            sorted coordinates from evenly spread positions scaled, so that the x and y
-            projections are as uneven as the sampler's; not where a structure is imposed;
-            :mod:`diffsampler_rt.projections`),
-            ``"restore_cut"`` (GBN models 1, sot /
-            sot_fast 0.4: where n is not a square, the thinned set's density restored from
-            the full set's up to that many sqrt(n) instead of the runtime's 0.25) and
-            ``"min_spacing": c`` (blue noise: pairs closer than c / sqrt(n) pushed apart,
-            every other point kept; :mod:`diffsampler_rt.spacing`), in that order, except
-            that where a structure is imposed the spacing and the evening come before it,
-            so that the structure holds exactly (ldbn: the n-rooks projection then puts
-            every point back in a strip of its own cell, which keeps most of the spacing
-            and of the evened large scales).
-            Before all that, ``"coarse_noise"`` (ldbn, sobol_owen) scales the coarse Fourier modes
-            of the solver's starting noise, so that the sets vary at large scales as
-            much as the sampler's (:mod:`diffsampler_rt.coarse_noise`; where the structure
-            is imposed, ``"structure_temperature"`` scales every other mode: ldbn_fast
-            0.9), and ``"guide"``
-            (sot) steers every solver step away from a weaker model of the same sampler
-            (autoguidance, two network evaluations a step;
-            :mod:`diffsampler_rt.guidance`).
-            ``False`` returns the network's sets as decoded, unguided, from white noise
-            (thinned to n points where n is not a square, restored below 0.25 sqrt(n)).
-            A non-uniform model's density (card field ``"density"``) is part of the model,
-            not a repair: its sets are mapped to it either way (:mod:`diffsampler_rt.density`).
-            So is a toroidal model's shift: a net with circular padding (``"padding":
-            "circular"``) makes its sets on the torus; they are decoded modulo 1 and each
-            shifted by a uniform random vector, as a toroidal sampler's sets may be, and
-            its minimum spacing is kept on the torus (across the seam too).
+            Run the finishing steps the model card's ``"pipeline"`` lists, in its order
+            (``diffsampler info MODEL`` prints them; :mod:`diffsampler_rt.finish`): noise
+            shaping, guidance, imposed structures, thinning, polish, evening, spacing.
+            ``False`` skips every step but thinning (which an n that is not a square
+            needs; it then restores the large scales below the default 0.25 sqrt(n)), so
+            the network's own sets come out, decoded, unguided, from white noise. The
+            model's density map (card field ``"density"``) and a toroidal model's random
+            shift (``"padding": "circular"``) are part of the model and apply either way.
 
         Returns
         -------
@@ -283,135 +219,65 @@ class Model:
         >>> sum(len(b) for b in m.iter_sets(64, 10, batch=4, seed=0))
         10
         """
-        k = _validate.num_points(n)
+        _validate.num_points(n)
         c = _validate.count(count)
         T = len(self.alpha_bar)
         s = self.card["default_steps"] if steps is None else _validate.steps(steps, T)
         solver = self.card["default_solver"] if solver is None else solver
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
-        distilled = self.card.get("distillation")
-        if distilled and (s, solver) != (self.card["default_steps"], self.card["default_solver"]):
-            warnings.warn(f"model {self.name!r} was distilled for {self.card['default_solver']} "
-                          f"with {self.card['default_steps']} steps; {solver} with {s} steps "
-                          "is outside what it learned and gives poorer sets", stacklevel=3)
+        self._warn_if_undistilled(s, solver)
         rng = _validate.rng(seed)
         structure = _validate.flag("structure", structure)
         progress = _validate.flag("progress", progress)
-        sequence = False
-        if structure and self.card.get("structure_prefix"):
-            # n not 4^h: the first n points, in Sobol' order, of a net of the next 4^h
-            side = 1 << (k - 1).bit_length()
-            sequence = side * side != n and applies(self.card, side)
-            k = side if sequence else k
+        plan = finishing.plan(self.card["pipeline"], n, structure=structure)
+        per_batch = self._per_batch(batch, plan.k)
+        ts = timesteps(T, min(s, T))
+        # built now, so that a missing or mismatched guide fails before any work
+        eps_fn = plan.denoiser(self.denoise, plan.context(n, model=self, timesteps=ts))
+        return self._blocks(plan, n, c, per_batch, rng, ts, solver, eps_fn, progress)
+
+    def _warn_if_undistilled(self, steps: int, solver: str) -> None:
+        card = self.card
+        if card.get("distillation") and (steps, solver) != (card["default_steps"],
+                                                            card["default_solver"]):
+            warnings.warn(f"model {self.name!r} was distilled for {card['default_solver']} "
+                          f"with {card['default_steps']} steps; {solver} with {steps} steps "
+                          "is outside what it learned and gives poorer sets", stacklevel=4)
+
+    @staticmethod
+    def _per_batch(batch: int | None, k: int) -> int:
         if batch is None:
-            per_batch = max(1, POINTS_PER_BATCH // (k * k))
-        else:
-            per_batch = _validate.integer("batch", batch)
-            if per_batch < 1:
-                raise ValueError(f"batch must be >= 1, got {per_batch}")
-        # validated now; the sets are made as the caller iterates
-        # a structure belongs to the k x k set, except a lattice (one per n: at an n that is
-        # not a square, the thinned set is replaced by its nearest lattice of n points); the
-        # per-size settings go by the n kept
-        lattice = self.card.get("structure") == "rank1_lattice"
-        imposed = bool(structure) and applies(self.card, k) and (n == k * k or not lattice)
-        relattice = bool(structure) and lattice and n < k * k
-        spacing = radius(self.card, n) if structure else None
-        polishing = self.card.get("sliced_ot") if structure else None
-        sliced = iterations_at(polishing, n, thinned=n < k * k) if polishing else 0
-        coarse = self.card.get("coarse_noise") if structure else None
-        # where the structure is imposed, every mode but the coarse ones at a temperature
-        hot = self.card.get("structure_temperature", 1.0) if imposed else 1.0
-        noise_shape = shaping(coarse, k * k, hot)
-        even = self.card.get("even_out") if structure else None
-        # where a structure is imposed the evening comes before it, on the full k x k set
-        evened = k * k if imposed else n
-        evening = (gain_at(even, evened), cut_at(even, evened)) if even else None
-        spread = (self.card.get("projection_gain") if structure and not (imposed or relattice)
-                  else None)
-        projection_gain = projection_gain_at(spread, n) if spread is not None else 1.0
-        # a thinned set's large scales restored from its full one up to this (a card's own
-        # cut is a tuning like the ones above; without them the runtime's default)
-        restore = self.card.get("restore_cut", RESTORE_CUT) if structure else RESTORE_CUT
-        guide = self.card.get("guide") if structure else None
-        weight = weight_at(guide, k * k) if guide else 0.0
-        if weight:
-            self.guide()  # a missing or mismatched guide fails here, before any work
-        return self._blocks(k, n, c, per_batch, rng, timesteps(T, min(s, T)), solver, progress,
-                            imposed, relattice, spacing, sliced, noise_shape, evening, restore,
-                            weight, sequence, projection_gain)
+            return max(1, POINTS_PER_BATCH // (k * k))
+        per_batch = _validate.integer("batch", batch)
+        if per_batch < 1:
+            raise ValueError(f"batch must be >= 1, got {per_batch}")
+        return per_batch
 
-    def _blocks(self, k: int, n: int, c: int, per_batch: int, rng: np.random.Generator,
-                ts: np.ndarray, solver: str, progress: bool, imposed: bool, relattice: bool,
-                spacing: float | None, sliced: int,
-                noise_shape: tuple[float, float, float] | None,
-                evening: tuple[float, float] | None, restore: float, weight: float,
-                sequence: bool, projection_gain: float = 1.0):
-        # one child stream per set: results do not depend on how sets are batched
-        streams = rng.spawn(c)
+    def _blocks(self, plan: finishing.Plan, n: int, c: int, per_batch: int,
+                rng: np.random.Generator, ts: np.ndarray, solver: str, eps_fn,
+                progress: bool):
+        """noise -> solver -> decode -> point steps -> density map, a batch at a time."""
+        streams = rng.spawn(c)  # one per set: results do not depend on the batching
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
-        density = self.card.get("density")
-        crowded_first = "min_spacing" in self.card  # a blue-noise card: thin by elimination
-        # a net with circular padding makes sets on the torus: decoded modulo 1 and shifted
-        # by a uniform random vector, so the set's seam is anywhere, as for the sampler
+        k, density = plan.k, self.card.get("density")
         toroidal = self.card.get("padding") == "circular"
-        scale = float(self.card["offset_scale"])
-        eps_fn = self.denoise
-        if weight:  # autoguidance by the card's weaker model
-            eps_fn = guided(self.denoise, self.guide().denoise, weight)
-        guided_steps = self.card.get("structure_guidance", 0) if imposed else 0
-        block = block_at(self.card, k)  # n-rooks' smallest stratified block at this side
-        if guided_steps:
-            def project(x0: np.ndarray) -> np.ndarray:
-                pts = impose_unchecked(decode(x0 / scale, stratified=True), k,
-                                       self.card["structure"], block=block)
-                return encode_stratified(pts, k) * scale
-
-            eps_fn = project_x0(eps_fn, self.alpha_bar, project,
-                                ts[max(0, len(ts) - guided_steps):])
         for start in range(0, c, per_batch):
             sub = streams[start:start + per_batch]
-            x = np.stack([g.standard_normal((2, k, k)) for g in sub])
-            if noise_shape is not None:  # (gain, cut) of the card's "coarse_noise", temperature
-                x = shape_noise(x, *noise_shape)
+            ctx = plan.context(n, torus=toroidal, rngs=sub)
+            x = plan.shape_noise(np.stack([g.standard_normal((2, k, k)) for g in sub]), ctx)
 
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])
 
             x = solve(solver, eps_fn, x, self.alpha_bar, ts, noise)
-            grid = x / scale
             bar.update(len(sub))
-            pts = decode(grid, stratified=self.card["embedding"] == "stratified",
-                         toroidal=toroidal)
-            if toroidal:  # after the solver's draws, like a lattice's shift
+            pts = decode(x / float(self.card["offset_scale"]),
+                         stratified=self.card["embedding"] == "stratified", toroidal=toroidal)
+            if toroidal:  # the set's seam anywhere, as for a toroidal sampler
                 pts = wrap(pts + np.stack([g.random(2) for g in sub])[:, None, :])
-            # an imposed structure must hold exactly, so the spacing and the evening go
-            # before it (the structure puts every point back in a strip of its own cell, a
-            # small move that keeps most of the spacing and the evened large scales)
-            if spacing is not None and imposed:
-                pts = enforce_min_spacing(pts, spacing, torus=toroidal)
-            if evening is not None and imposed:
-                pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
-            if sequence:  # the column and row scrambles come after the solver's draws
-                pts = first_points(*impose_sobol_unchecked(pts, k, sub), n)
-            elif imposed:  # a lattice's random shift comes after the solver's draws
-                pts = impose_unchecked(pts, k, self.card["structure"], sub, block)
-            if relattice:  # n not a square: the thinned set's nearest lattice of n points
-                pts = nearest_rank1_lattice(eliminate(pts, n, torus=toroidal), sub)
-            elif n < pts.shape[-2]:  # blue noise: the most crowded points go; else at random
-                pts = thin(pts, n, torus=toroidal, rngs=None if crowded_first else sub,
-                           cut=restore)
-            if sliced:
-                pts = polish(pts, sliced, self.card["sliced_ot"]["directions"], sub,
-                             step=self.card["sliced_ot"].get("step", 1.0))
-            if evening is not None and not imposed:  # (gain, cut) of the card's "even_out"
-                pts = even_out(pts, evening[0], cut=evening[1], torus=toroidal)
-            if projection_gain != 1.0:  # the card's "projection_gain" (no structure here)
-                pts = spread_projections(pts, projection_gain)
-            if spacing is not None and not imposed:
-                pts = enforce_min_spacing(pts, spacing, torus=toroidal)
-            # a non-uniform model's net makes the sets in the uniform square
+            pts = plan.finish(pts, ctx)
+            # a non-uniform model's net makes its sets in the uniform square
             yield pts if density is None else warp(pts, density)
 
 
@@ -494,12 +360,6 @@ def session_options(threads: int | None = None, *,
 @lru_cache(maxsize=16)
 def _cached(path: str, mtime: float) -> Model:
     return Model(path)
-
-
-def _alternates(card: dict) -> bool:
-    """Whether a model's network runs take turns with other work on the same cores (a
-    sliced-OT polish, or a guide's network): then its session must not spin."""
-    return bool(card.get("sliced_ot") or card.get("guide"))
 
 
 @lru_cache(maxsize=8)

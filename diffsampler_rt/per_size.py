@@ -34,6 +34,14 @@ def finite_number(v: Any) -> bool:
     return not isinstance(v, bool) and isinstance(v, (int, float)) and bool(np.isfinite(v))
 
 
+def value(spec: float | dict, n: int) -> float:
+    """The value at n points of a step parameter that is a number or a per-size table
+    ``{"n": [sizes], "values": [...]}`` (the one form of the card's pipeline)."""
+    if isinstance(spec, dict):
+        return at(spec["n"], spec["values"], n)
+    return float(spec)
+
+
 def value_at(spec: float | dict, key: str, n: int) -> float:
     """The value at n points of a card setting that is a number or a per-size table
     ``{"n": [sizes], key: [values]}`` (``min_spacing``'s "c", ``projection_gain``'s "gain")."""

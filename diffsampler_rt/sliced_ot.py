@@ -295,7 +295,13 @@ def iterations_at(spec: dict, n: int, *, thinned: bool = False) -> int:
     iterations; at n = 200 +38 / +17 / +7 % with 4 / 8 / 12)."""
     k = (int(round(per_size.at(spec["n"], spec["iterations"], n))) if "n" in spec
          else int(spec["iterations"]))
-    return THINNED_FACTOR * max(k, THINNED_MIN) if thinned else k
+    return thinned_iterations(k) if thinned else k
+
+
+def thinned_iterations(iterations: int) -> int:
+    """A thinned set's iterations for a card's ``iterations``: THINNED_FACTOR times as many,
+    at least THINNED_FACTOR * THINNED_MIN (see :func:`iterations_at`)."""
+    return THINNED_FACTOR * max(iterations, THINNED_MIN)
 
 
 def describe(spec: dict | None) -> str:

@@ -104,9 +104,10 @@ def _fit_nested(labels: np.ndarray, offsets: np.ndarray, h: int) -> np.ndarray:
     return out
 
 
-def _orbit(pts: np.ndarray, k: int, rngs: list[np.random.Generator]
+def orbit(pts: np.ndarray, k: int, rngs: list[np.random.Generator]
            ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`impose_sobol_orbit` without the checks, one generator per set."""
+    """:func:`impose_sobol_orbit` on points it trusts to lie one per cell in row-major
+    order (the finishing step's input), one generator per set."""
     h = k.bit_length() - 1
     u_of, v_of, reverse = _canonical(h)
     grid = pts.reshape((-1, k, k, 2))  # (set, row, col, xy)
@@ -172,7 +173,7 @@ def impose_sobol_orbit(points: np.ndarray, k: int, *,
     pts = _checked(points, int(k))
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     flat = pts.reshape((-1, k * k, 2))
-    out, index = _orbit(flat, int(k), gen.spawn(len(flat)))
+    out, index = orbit(flat, int(k), gen.spawn(len(flat)))
     return out.reshape(pts.shape), index.reshape(pts.shape[:-1])
 
 

@@ -28,6 +28,9 @@ from ._validate import unit_points
 from .grid import wrap
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
+#: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
+#: = 1.0746 / sqrt(n) apart for large n; a card asking for more could not be met there
+MAX_SPACING = 1.07
 #: pushes aim this much past r: pushing to exactly r converges slowly in dense sets (a push
 #: starts new close pairs with the neighbours, shortfalls shrink by ~2x a round), 1 % past r
 #: resolves Poisson disk sets in <= 10 rounds and raises their smallest distance by < 0.5 %

@@ -250,7 +250,7 @@ def impose_runs(points: np.ndarray, k: int, run: int) -> np.ndarray:
     """
     if not isinstance(run, (int, np.integer)) or isinstance(run, bool) or not 2 <= run <= k:
         raise ValueError(f"run must be an integer in [2, k={k}], got {run!r}")
-    return _impose(_checked(points, k), k, "n_rooks", block=int(run))
+    return impose(_checked(points, k), k, "n_rooks", block=int(run))
 
 
 def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
@@ -273,7 +273,7 @@ def impose_dyadic_net(points: np.ndarray, k: int) -> np.ndarray:
     """
     if k < 1 or k & (k - 1):
         raise ValueError(f"a dyadic net needs a power-of-two grid side, got k={k}")
-    return _impose(_checked(points, k), k)
+    return impose(_checked(points, k), k)
 
 
 def impose_n_rooks(points: np.ndarray, k: int, *, block: int | None = None) -> np.ndarray:
@@ -307,7 +307,7 @@ def impose_n_rooks(points: np.ndarray, k: int, *, block: int | None = None) -> n
         if block < k and k & (k - 1):
             raise ValueError(f"a block of {block} cells needs a power-of-two grid side, "
                              f"got k={k}")
-    return _impose(_checked(points, k), k, "n_rooks", block=block)
+    return impose(_checked(points, k), k, "n_rooks", block=block)
 
 
 def _checked(points: np.ndarray, k: int) -> np.ndarray:
@@ -324,11 +324,12 @@ def _checked(points: np.ndarray, k: int) -> np.ndarray:
     return pts
 
 
-def _impose(pts: np.ndarray, k: int, name: str = "dyadic_net",
+def impose(pts: np.ndarray, k: int, name: str = "dyadic_net",
             rngs: list[np.random.Generator] | None = None,
             block: int | None = None) -> np.ndarray:
-    """The structure ``name`` without the checks, for the runtime's generation loop
-    (a stratified decode already puts one point per cell in row-major order); ``rngs``, one
+    """The structure ``name`` imposed on points it trusts to lie one per grid cell in
+    row-major order (as a stratified decode gives them; the finishing steps call it after
+    the public edge has checked the input); ``rngs``, one
     per set, draw the lattices' random shifts; ``block``: n-rooks' smallest stratified block
     (the card's ``"structure_block"``)."""
     if name == "rank1_lattice":

@@ -1,18 +1,6 @@
-"""Change the sampling defaults (solver, steps, structure, spacing, noise) of a model's card.
-
-The defaults are what ``diffsampler_rt.generate`` uses when the caller gives no ``solver`` /
-``steps``, and what it restores on the decoded sets: a net or n-rooks structure
-(``diffsampler_rt.structure``; at power-of-two grid sides >= ``structure_min_side``, and
-projected onto the clean-set prediction of the last ``structure_guidance`` solver steps), the
-nearest rank-1 lattice (``diffsampler_rt.lattice``), a
-few sliced-OT iterations (``diffsampler_rt.sliced_ot``) or a minimum spacing
-(``diffsampler_rt.spacing``; the coefficient comes from the training sets,
-``python -m trainer spacing CONFIG``); with ``guide`` every solver step is steered away
-from a weaker model (``diffsampler_rt.guidance``);
-and with ``coarse_noise`` the solver's starting noise has its coarse Fourier modes scaled
-(``diffsampler_rt.coarse_noise``);
-they are chosen by measurement (benchmarks/solver_sweep.py, fidelity.py), after training, so
-they are edited in place rather than baked in at export.
+"""Edit an exported model's card in place: its default solver and steps, a non-uniform
+model's density floor; every edit checked by the runtime's own card checks before the file
+is written (:func:`edit_card`). The finishing pipeline: :mod:`export.pipeline_edit`.
 """
 from __future__ import annotations
 
@@ -21,7 +9,8 @@ from pathlib import Path
 
 import onnx
 
-from diffsampler_rt.card import CARD_KEY, STRUCTURE_SETTINGS, parse_card
+from diffsampler_rt.card import CARD_KEY, parse_card
+from diffsampler_rt.finish import legacy
 from diffsampler_rt.solvers import SOLVERS
 
 
@@ -35,6 +24,8 @@ def edit_card(path: str | Path, edit) -> dict:
     if CARD_KEY not in props:
         raise ValueError(f"{path} has no diffsampler model card")
     card = json.loads(props[CARD_KEY].value)
+    if card.get("format_version") == 1:  # written before the pipeline: migrated on any edit
+        card = legacy.convert(card)
     edit(card)
     props[CARD_KEY].value = json.dumps(card, sort_keys=True)
     parse_card({CARD_KEY: props[CARD_KEY].value}, str(path))
@@ -43,102 +34,38 @@ def edit_card(path: str | Path, edit) -> dict:
 
 
 def set_defaults(path: str | Path, *, solver: str | None = None,
-                 steps: int | None = None, structure: str | None = None,
-                 structure_min_side: int | None = None, structure_guidance: int | None = None,
-                 structure_sides: list[int] | None = None,
-                 structure_temperature: float | str | None = None,
-                 structure_block: int | dict | str | None = None,
-                 structure_prefix: bool | None = None,
-                 structure_runs: int | str | None = None,
-                 sliced_ot: dict | str | None = None,
-                 min_spacing: float | dict | str | None = None,
-                 coarse_noise: dict | str | None = None,
-                 even_out: dict | str | None = None,
-                 projection_gain: float | dict | str | None = None,
-                 restore_cut: float | str | None = None,
-                 guide: dict | str | None = None) -> dict:
-    """Rewrite ``default_solver`` / ``default_steps`` / ``structure`` (with its
-    ``structure_min_side``, ``structure_guidance``, ``structure_sides``,
-    ``structure_temperature``, ``structure_block``, ``structure_prefix`` and
-    ``structure_runs``) / ``sliced_ot`` / ``min_spacing`` / ``coarse_noise`` / ``even_out`` /
-    ``projection_gain`` / ``restore_cut`` / ``guide`` of the card in ``path`` (``"none"`` removes a structure with
-    its seven settings, runs,
-    a temperature, a
-    block, a sliced-OT polish, a spacing, a noise gain, an evening-out, a projection gain,
-    a restore cut, which
-    then is the runtime's default, or a guide); returns the card. A ``guide`` without a digest gets
-    ``"network_sha256"``, that of the guide's network (next to ``path``, else a bundled
-    model or guide), which must exist. A ``sliced_ot`` without ``"directions"`` or
-    ``"step"`` keeps the card's (else 64 and 1)."""
+                 steps: int | None = None) -> dict:
+    """Rewrite ``default_solver`` / ``default_steps`` (None: leave it) in the card in
+    ``path``; returns the card. The finishing steps are edited with
+    :func:`export.pipeline_edit.edit_pipeline`."""
     if solver is not None and solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
-    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int)
+                              or steps < 1):
+        raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
 
     def edit(card: dict) -> None:
-        T = int(card["schedule"]["num_steps"])
-        if steps is not None and steps > T:
-            raise ValueError(f"steps must be at most the schedule's {T}, got {steps}")
         if solver is not None:
             card["default_solver"] = solver
         if steps is not None:
             card["default_steps"] = steps
-        if structure == "none":
-            for key in ("structure", *STRUCTURE_SETTINGS):
-                card.pop(key, None)
-        elif structure is not None:
-            card["structure"] = structure
-        if structure_min_side is not None:
-            card["structure_min_side"] = structure_min_side
-        if structure_guidance is not None:
-            card["structure_guidance"] = structure_guidance
-        if structure_sides is not None:
-            card["structure_sides"] = structure_sides
-        _put(card, "structure_temperature", structure_temperature)
-        _put(card, "structure_block", structure_block)
-        _put(card, "structure_runs", structure_runs)
-        if structure_prefix:
-            card["structure_prefix"] = True
-        elif structure_prefix is not None:  # false is the runtime's default: the field goes
-            card.pop("structure_prefix", None)
-        if sliced_ot == "none":
-            card.pop("sliced_ot", None)
-        elif sliced_ot is not None:
-            # new iterations keep the card's directions and step unless given (else 64, 1)
-            kept = {key: value for key, value in card.get("sliced_ot", {}).items()
-                    if key in ("directions", "step")}
-            card["sliced_ot"] = {"directions": 64, **kept, **sliced_ot}
-        _put(card, "coarse_noise", coarse_noise)
-        _put(card, "even_out", even_out)
-        _put(card, "projection_gain", projection_gain)
-        _put(card, "restore_cut", restore_cut)
-        if guide == "none":
-            card.pop("guide", None)
-        elif guide is not None:
-            card["guide"] = _with_digest(guide, Path(path))
-        _put(card, "min_spacing", min_spacing)
 
     return edit_card(path, edit)
 
 
-def _put(card: dict, key: str, value) -> None:
-    """Set ``card[key]``; ``"none"`` removes it, ``None`` leaves it as it is."""
-    if isinstance(value, str) and value == "none":
-        card.pop(key, None)
-    elif value is not None:
-        card[key] = value
-
-
-def _with_digest(guide: dict, path: Path) -> dict:
-    """``guide`` with the sha256 of its network (checked for form first: a bad name is
-    reported as such, not as a missing file)."""
-    from diffsampler_rt.guidance import DIGESTS, guide_path, settings_problem
+def with_guide_digests(pipeline: list[dict], path: Path) -> None:
+    """Give every ``guide`` entry without a digest the sha256 of its guide's network, so
+    that a later change of the guide file is caught on loading (a bad entry is left for
+    the card check to report)."""
+    from diffsampler_rt.finish.pipeline import entry_problem
+    from diffsampler_rt.guidance import DIGESTS, guide_path
     from diffsampler_rt.metadata import network_sha256
     from diffsampler_rt.model import MODELS_DIR
-    if set(DIGESTS) & set(guide) or settings_problem(guide):
-        return guide  # the card check that follows reports the problem
-    found = guide_path(guide, path.resolve(), MODELS_DIR)
-    return {**guide, "network_sha256": network_sha256(found)}
+    for entry in pipeline:
+        if entry.get("step") == "guide" and not set(DIGESTS) & set(entry) \
+                and entry_problem(entry) is None:
+            found = guide_path(entry, Path(path).resolve(), MODELS_DIR)
+            entry["network_sha256"] = network_sha256(found)
 
 
 def set_density_floor(path: str | Path, floor: float) -> dict:
@@ -161,3 +88,9 @@ def set_density_floor(path: str | Path, floor: float) -> dict:
                               f"{old:g} to {floor:g} (python -m export density-floor)")
 
     return edit_card(path, edit)
+
+
+def migrate(path: str | Path) -> dict:
+    """Rewrite a format-1 card as format 2 (its finishing fields as the ordered pipeline
+    that does the same); the sets the model makes do not change."""
+    return edit_card(path, lambda card: None)

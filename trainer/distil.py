@@ -49,17 +49,17 @@ import numpy as np
 import torch
 
 from diffsampler_rt.card import CARD_KEY, describe_devices, parse_card
-from diffsampler_rt.coarse_noise import shape_noise, shaping
 from diffsampler_rt.grid import decode, encode_stratified
-from diffsampler_rt.guidance import guided, weight_at
+from diffsampler_rt.guidance import guided
 from diffsampler_rt.metadata import network_digest, network_sha256
 # the runtime's own start-noise settings, so the rollout starts as generation does
 from diffsampler_rt.schedule import timesteps
 from diffsampler_rt.solvers import SOLVERS, solve
 from diffsampler_rt.spectrum import BIN_WIDTH, NUM_BINS
 # the runtime's own imposition (unchecked: its decode already puts one point per cell)
-from diffsampler_rt.structure import _impose as impose_unchecked
-from diffsampler_rt.structure import applies, block_at
+from diffsampler_rt import per_size
+from diffsampler_rt.finish import legacy
+from diffsampler_rt.finish import pipeline as finishing
 
 from .data import cache_dir, make_pool
 from .density import OLD_FLOOR
@@ -231,8 +231,13 @@ def hop_times(num_train_steps: int, student_steps: int) -> np.ndarray:
 
 def guidance_weight(teacher, k: int) -> float:
     """The weight of the teacher card's guide at a k x k grid (0: none)."""
-    spec = teacher.card.get("guide")
-    return weight_at(spec, k * k) if spec else 0.0
+    spec = finishing.find(teacher.card["pipeline"], "guide")
+    return per_size.value(spec["weight"], k * k) if spec else 0.0
+
+
+def _guide(teacher):
+    """The teacher's guide model (its card's ``guide`` step)."""
+    return teacher.guide(finishing.find(teacher.card["pipeline"], "guide"))
 
 
 def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
@@ -245,7 +250,7 @@ def teacher_trajectories(teacher, k: int, count: int, *, teacher_steps: int,
     ``guidance``: the teacher's denoiser guided as its card says (:func:`guidance_weight`).
     """
     weight = guidance_weight(teacher, k) if guidance else 0.0
-    denoise = (guided(teacher.denoise, teacher.guide().denoise, weight) if weight
+    denoise = (guided(teacher.denoise, _guide(teacher).denoise, weight) if weight
                else teacher.denoise)
     T = len(teacher.alpha_bar)
     ts = timesteps(T, teacher_steps)
@@ -284,7 +289,7 @@ def cached_trajectories(cfg: DistilConfig, teacher, teacher_sha1: str, k: int,
            cfg.seed]
     weight = guidance_weight(teacher, k) if cfg.teacher_guidance else 0.0
     if weight:
-        key += [network_sha256(teacher.guide().path), weight]
+        key += [network_sha256(_guide(teacher).path), weight]
     key = json.dumps(key)
     path = cache_dir() / f"traj_{teacher.name}_k{k}_{hashlib.sha1(key.encode()).hexdigest()[:12]}.npy"
     if path.exists():
@@ -445,8 +450,9 @@ class Distiller:
                       seed=np.random.default_rng([self.cfg.seed, k]))
 
     def _rollout_card(self) -> dict[str, Any] | None:
-        """The card the spectrum rollout follows (``spectrum_card``), validated as the
-        runtime validates a model's card, or None."""
+        """The card the spectrum rollout follows (``spectrum_card``: a model, or card
+        entries such as ``{"pipeline": [...]}`` over the teacher's card; format-1 fields
+        are converted), validated as the runtime validates a model's card, or None."""
         import diffsampler_rt
 
         spec = self.cfg.spectrum_card
@@ -457,12 +463,18 @@ class Distiller:
         if not isinstance(spec, dict):
             raise ValueError(f"spectrum_card must be a model or a dict of card entries, "
                              f"got {spec!r}")
+        if any(key in legacy.FIELDS for key in spec):
+            spec = {**{k: v for k, v in spec.items() if k not in legacy.FIELDS},
+                    "pipeline": legacy.to_pipeline(spec)}
         return parse_card({CARD_KEY: json.dumps({**self.teacher_card, **spec})},
                           "spectrum_card")
 
+    def _plan(self, k: int) -> finishing.Plan:
+        """The rollout card's pipeline at a k x k grid (the runtime's own plan)."""
+        return finishing.plan(self.rollout_card["pipeline"], k * k)
+
     def _imposed(self, k: int) -> bool:
-        card = self.rollout_card
-        return bool(card) and card["embedding"] == "stratified" and applies(card, k)
+        return bool(self.rollout_card) and self._plan(k).project is not None
 
     def _imposed_points(self, grid: torch.Tensor) -> np.ndarray:
         """A batch of scaled offsets (B, 2, k, k), decoded as the runtime does and with the
@@ -470,20 +482,26 @@ class Distiller:
         k = grid.shape[-1]
         scale = float(self.teacher_card["offset_scale"])
         pts = decode(grid.detach().cpu().double().numpy() / scale, stratified=True)
-        return impose_unchecked(pts, k, self.rollout_card["structure"],
-                                block=block_at(self.rollout_card, k))
+        return self._plan(k).project(pts)
 
     def _start_noise(self, k: int, count: int) -> torch.Tensor:
         """Starting noise of ``count`` rollouts at side k: the teacher's recorded noise of
-        random trajectories, or with ``spectrum_card`` fresh noise shaped as its card says."""
+        random trajectories, or with ``spectrum_card`` fresh noise shaped by its pipeline's
+        noise steps, as the runtime shapes it."""
         card = self.rollout_card
         if card is None:
             traj = self.trajectories[k]
             return traj[0, torch.randint(0, traj.shape[1], (count,), generator=self.gen)]
         x = torch.randn((count, 2, k, k), generator=self.gen, dtype=torch.float64).numpy()
-        hot = card.get("structure_temperature", 1.0) if self._imposed(k) else 1.0
-        settings = shaping(card.get("coarse_noise"), k * k, hot)
-        return torch.from_numpy(x if settings is None else shape_noise(x, *settings)).float()
+        plan = self._plan(k)
+        return torch.from_numpy(plan.shape_noise(x, plan.context(k * k))).float()
+
+    def _guided_steps(self, k: int) -> int:
+        """How many of the last steps the rollout card's structure guidance steers at k."""
+        if not self._imposed(k):
+            return 0
+        return sum(params["steps"] for step, params in self._plan(k).steps["denoiser"]
+                   if step.name == "structure_guidance")
 
     def rollout(self, x: torch.Tensor) -> torch.Tensor:
         """The student's deterministic DDIM from x at its first timestep to its clean
@@ -491,7 +509,7 @@ class Distiller:
         structure guidance too (the projection's move passed straight through)."""
         k = x.shape[-1]
         ts = self.hops[:-1].tolist()
-        late = self.rollout_card.get("structure_guidance", 0) if self._imposed(k) else 0
+        late = self._guided_steps(k)
         guided = set(ts[max(0, len(ts) - late):]) if late else set()
         for t, t_next in zip(ts, self.hops[1:].tolist()):
             ab_t = self.alpha_bar[t]
@@ -568,7 +586,8 @@ class Distiller:
             if self.cut_from:
                 distillation.update(earlier_res_blocks=self.cut_from)
                 earlier += f", cut down from {self.cut_from} res blocks a level"
-        guide = self.teacher_card.get("guide") if self.cfg.teacher_guidance else None
+        guide = (finishing.find(self.teacher_card["pipeline"], "guide")
+                 if self.cfg.teacher_guidance else None)
         guided_by = f"; guided by {guide['model']} as its card says" if guide else ""
         smaller = ""
         if self.cfg.student_unet:
