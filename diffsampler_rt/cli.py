@@ -117,6 +117,7 @@ def _cmd_plot(args: argparse.Namespace) -> None:
 
 
 def _cmd_list(args: argparse.Namespace) -> None:
+    from .finish.pipeline import find
     from .model import MODELS_DIR, bundled_models, load
     names = bundled_models()
     width = max(map(len, names), default=0)  # the name column fits the longest name
@@ -127,23 +128,30 @@ def _cmd_list(args: argparse.Namespace) -> None:
         origin = f", distilled from {distilled['teacher']}" if distilled else ""
         origin += ", 8-bit convolutions" if card.get("weights") == "int8" else ""
         origin += ", toroidal sets" if card.get("padding") == "circular" else ""
-        origin += f", guided by {card['guide']['model']}" if card.get("guide") else ""
+        guide = find(card["pipeline"], "guide")
+        origin += f", guided by {guide['model']}" if guide else ""
         print(f"{name:<{width}} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
               f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
               f"({size:.1f} MiB{origin})")
 
 
 def _cmd_info(args: argparse.Namespace) -> None:
+    from .finish.pipeline import describe
     from .model import load
     m = load(args.model)
     card = dict(m.card)
     if not args.full:
         card.pop("config", None)
+        card.pop("pipeline")
         if "density" in card:
             bins = len(card["density"]["x_cdf"]) - 1
             card["density"] = f"{bins} x {bins} table (--full prints it)"
     print(f"path: {m.path}")
     print(json.dumps(card, indent=2, sort_keys=True))
+    if not args.full:  # the finishing steps in words, in the order they run
+        print("pipeline (after the network, in order; --full prints the entries):")
+        for i, line in enumerate(describe(m.card["pipeline"]) or ["none"]):
+            print(f"  {i}. {line}")
 
 
 def _add_sampling_options(parser: argparse.ArgumentParser) -> None:

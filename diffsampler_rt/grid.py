@@ -29,6 +29,23 @@ def strip_bounds(k: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def reflect(values: np.ndarray) -> np.ndarray:
+    """Values folded into [0, 1) by reflection at 0 and 1 (period 2): a point pushed 0.01
+    past an edge lands 0.01 inside it. Unlike clamping, this puts no mass exactly on the
+    border (a clamped coordinate of exactly 0 breaks an inverse-CDF transform downstream,
+    and piles up at the edge).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from diffsampler_rt.grid import reflect
+    >>> reflect(np.array([-0.25, 0.5, 1.25, 2.5]))
+    array([0.25, 0.5 , 0.75, 0.5 ])
+    """
+    v = np.abs(np.asarray(values, dtype=np.float64)) % 2.0
+    return np.minimum(np.where(v >= 1.0, 2.0 - v, v), _BELOW_ONE)
+
+
 def wrap(points: np.ndarray) -> np.ndarray:
     """Points taken modulo 1 into [0, 1)^2 (the torus), float64."""
     p = np.asarray(points, dtype=np.float64)
@@ -39,16 +56,17 @@ def decode(grid: np.ndarray, *, stratified: bool = False, toroidal: bool = False
     """Offsets (..., 2, k, k) in cell units -> points (..., k*k, 2) in [0, 1)^2, float64.
 
     ``stratified=True`` keeps every point inside its own cell (the embedding of a
-    stratified sampler guarantees one point per cell); ``toroidal=True`` takes points
-    modulo 1 (a net with circular padding works on the torus); otherwise points are
-    clipped to the unit square.
+    stratified sampler guarantees one point per cell): an offset past the cell's edge is
+    reflected back into it; ``toroidal=True`` takes points modulo 1 (a net with circular
+    padding works on the torus); otherwise points outside the unit square are reflected
+    into it (:func:`reflect`).
     """
     grid = np.asarray(grid, dtype=np.float64)
     k = grid.shape[-1]
     if grid.shape[-3:] != (2, k, k):
         raise ValueError(f"grid must have shape (..., 2, k, k), got {grid.shape}")
     if stratified:
-        grid = np.clip(grid, -0.5, 0.5)
+        grid = reflect(grid + 0.5) - 0.5
     centre = np.arange(k, dtype=np.float64) + 0.5
     x = (grid[..., 0, :, :] + centre[None, :]) / k
     y = (grid[..., 1, :, :] + centre[:, None]) / k
@@ -57,7 +75,9 @@ def decode(grid: np.ndarray, *, stratified: bool = False, toroidal: bool = False
         x = np.clip(x, lo[None, :], hi[None, :])
         y = np.clip(y, lo[:, None], hi[:, None])
     pts = np.stack([x, y], axis=-1).reshape(grid.shape[:-3] + (k * k, 2))
-    return wrap(pts) if toroidal and not stratified else np.clip(pts, 0.0, _BELOW_ONE)
+    if toroidal and not stratified:
+        return wrap(pts)
+    return pts if stratified else reflect(pts)
 
 
 def encode_stratified(points: np.ndarray, k: int) -> np.ndarray:

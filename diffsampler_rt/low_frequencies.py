@@ -32,6 +32,7 @@ import numpy as np
 from . import per_size
 from ._cic import deposit
 from ._validate import unit_points
+from .grid import reflect
 
 #: frequencies restored after thinning: |f| < RESTORE_CUT sqrt(n) (in the radial spectrum's
 #: units; the displacement field is smooth over about 1 / RESTORE_CUT point spacings),
@@ -207,4 +208,4 @@ def _move(a0: np.ndarray, target: np.ndarray | None, gain: float, cut: float,
             u[:, axis] += weight * field[ix, iy]
     if torus:
         return np.minimum((a0 + u) % 1.0, np.nextafter(1.0, 0.0))
-    return np.clip(2 * (a + u)[:n], 0.0, np.nextafter(1.0, 0.0))  # the unreflected copy
+    return reflect(2 * (a + u)[:n])  # the unreflected copy, folded back where it left

@@ -24,6 +24,7 @@ import numpy as np
 
 from . import per_size
 from ._validate import unit_points
+from .grid import reflect
 
 #: gains a card may ask for: beyond these the move is no longer small against the spacing
 MIN_GAIN, MAX_GAIN = 0.5, 1.5
@@ -34,7 +35,7 @@ def spread_projections(points: np.ndarray, gain: float) -> np.ndarray:
     """Scale each axis's deviations from evenly spread positions by ``gain``.
 
     For every set and axis, with x_(0) <= ... <= x_(n-1) its sorted coordinates, x_(i)
-    becomes (i + 1/2) / n + gain (x_(i) - (i + 1/2) / n), clipped into [0, 1). ``gain`` = 1
+    becomes (i + 1/2) / n + gain (x_(i) - (i + 1/2) / n), reflected into [0, 1) at the edges. ``gain`` = 1
     returns the points unchanged.
 
     Parameters
@@ -68,7 +69,7 @@ def spread_projections(points: np.ndarray, gain: float) -> np.ndarray:
     even = ((np.arange(n) + 0.5) / n)[:, None]
     order = np.argsort(pts, axis=-2, kind="stable")
     sorted_pts = np.take_along_axis(pts, order, axis=-2)
-    moved = np.clip(even + gain * (sorted_pts - even), 0.0, _BELOW_ONE)
+    moved = reflect(even + gain * (sorted_pts - even))
     out = np.empty_like(pts)
     np.put_along_axis(out, order, moved, axis=-2)
     return out

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import per_size
 from ._validate import unit_points
-from .grid import wrap
+from .grid import reflect, wrap
 
 _BELOW_ONE = np.nextafter(1.0, 0.0)
 #: the densest packing (hexagonal) keeps n points at most about sqrt(2 / sqrt(3) / n)
@@ -164,7 +164,7 @@ def enforce_min_spacing(points: np.ndarray, r: float, *, rounds: int = 32,
         move = np.zeros_like(flat)
         np.add.at(move, i, -push)
         np.add.at(move, j, push)
-        new = wrap(flat + move) if torus else np.clip(flat + move, 0.0, _BELOW_ONE)
+        new = wrap(flat + move) if torus else reflect(flat + move)
         query = np.flatnonzero(np.any(new != flat, axis=1))
         flat = new
         if len(query) == 0:

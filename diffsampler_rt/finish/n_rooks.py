@@ -27,7 +27,7 @@ class NRooks(Step):
                     required=False))
 
     def describe(self, params):
-        extra = f", blocks {describe_block(params['block'])}" if "block" in params else ""
+        extra = f", {describe_block(params['block'])}" if "block" in params else ""
         runs = f", runs of {params['runs']} at other sides" if "runs" in params else ""
         return f"n-rooks projections imposed{describe_sides(params)}{extra}{runs}"
 

@@ -149,3 +149,16 @@ def find(pipeline: Sequence[Entry], name: str) -> dict[str, Any] | None:
     """The parameters of the first entry of step ``name``, or None (readers such as the
     distiller and the reports; the runtime itself never looks a step up by name)."""
     return next((params_of(e) for e in pipeline if e["step"] == name), None)
+
+
+def markdown_table() -> str:
+    """The step registry as a Markdown table (docs/runtime.md carries it; a test checks it
+    against the registry)."""
+    rows = ["| step | phase | what it does | parameters |", "|---|---|---|---|"]
+    for step in STEPS.values():
+        params = "<br>".join(f"`{p.name}`{'' if p.required else ' (optional)'}: {p.help}; "
+                             f"{p.accepts()}" for p in step.params) or "none"
+        kind = ", structure" if step.structure else ""
+        rows.append(f"| `{step.name}` | {step.phase}{kind} | {step.summary} | "
+                    f"{params.replace('|', '/')} |")
+    return "\n".join(rows)
