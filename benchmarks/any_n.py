@@ -43,6 +43,7 @@ from benchmarks.fidelity import (STATS, _fmt_rel, _per_set, _statistic,  # noqa:
                                  add_pool_options, check_pool_options, pool_text,
                                  reference, set_stats, settings_pools, tolerance)
 from diffsampler_rt.low_frequencies import RESTORE_CUT  # noqa: E402
+from diffsampler_rt.finish.pipeline import find  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae  # noqa: E402
 
 MODELS = ("poisson_disk", "poisson_disk_fast", "poisson_disk_torus_fast", "gbn", "gbn_fast",
@@ -90,7 +91,7 @@ def measure(pool, name: str, n: int, a) -> dict:
            "random": row_of(pool, dropped_at_random(square, n, a.seed), count, spec_a,
                             stats_a, stats_b)}
     e = out["eliminated"]
-    if model.card.get("structure_prefix"):  # made from the next power of four's net
+    if _prefixed(model.card):  # made from the next power of four's net
         e["grid"] = 1 << (k - 1).bit_length()
     print(f"{name} n={n}: MAE {e['mae']:.4f} (floor {out['floor']:.4f}, random drop "
           f"{out['random']['mae']:.4f}); "
@@ -122,12 +123,17 @@ def kept(out: Path) -> dict[str, dict]:
     return {p.stem: json.loads(p.read_text()) for p in paths}
 
 
+def _prefixed(card: dict) -> bool:
+    """Whether the card's sets of n points are the first n of the next power of four's net."""
+    return bool((find(card["pipeline"], "dyadic_net") or {}).get("prefix"))
+
+
 def _restore_text(card: dict, record: dict) -> str:
     """How far the measured run restored the thinned sets' large scales (records from before
     the card field have the runtime's default, which was the only cut then)."""
-    if card.get("structure") == "rank1_lattice":  # replaced by a lattice, not restored
+    if find(card["pipeline"], "rank1_lattice") is not None:  # a lattice, not restored
         return ""
-    if card.get("structure_prefix"):
+    if _prefixed(card):
         return ("sets of n points: the first n, in Sobol' order, of a net of the next "
                 "power-of-four size (card `structure_prefix`, `diffsampler_rt.sobol_orbit`); ")
     cut = record.get("restore_cut", RESTORE_CUT)
@@ -248,7 +254,8 @@ def main() -> None:
     for name in a.models:
         card = diffsampler_rt.load(name).card
         samplers[name] = card["sampler"]
-        restore_cuts[name] = card.get("restore_cut", RESTORE_CUT)
+        restore_cuts[name] = (find(card["pipeline"], "thin") or {}).get("restore_cut",
+                                                                         RESTORE_CUT)
         if card.get("density") or card["sampler"] not in MEASURABLE:
             p.error(f"--models: {name}'s sampler {card['sampler']!r} is not measured here "
                     "(no reference sets of non-square size, or a density)")

@@ -46,16 +46,10 @@ sys.path.insert(0, str(ROOT))
 
 import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
-from diffsampler_rt.coarse_noise import describe as describe_coarse  # noqa: E402
-from diffsampler_rt.low_frequencies import describe as describe_even  # noqa: E402
+from diffsampler_rt.finish.pipeline import describe as describe_pipeline  # noqa: E402
 from benchmarks.common import (SEED_COLUMNS, cache_dir, cached_sets,  # noqa: E402
                                example_reference, model_hash, reference_path, seed_curve)
-from diffsampler_rt.guidance import describe as describe_guide  # noqa: E402
 from diffsampler_rt.lattice import fit_rank1_lattice  # noqa: E402
-from diffsampler_rt.projections import describe as describe_projection  # noqa: E402
-from diffsampler_rt.sliced_ot import describe as describe_sliced  # noqa: E402
-from diffsampler_rt.spacing import describe as describe_spacing  # noqa: E402
-from diffsampler_rt.structure import describe_block  # noqa: E402
 from trainer.samplers import SLOW  # noqa: E402
 from trainer.samplers.lattice import maxmin_generator, p2_generator  # noqa: E402
 from trainer.density import OLD_FLOOR  # noqa: E402
@@ -698,22 +692,9 @@ def model_card_text(c: dict) -> str:
             + (f"Distillation: {c['provenance']}. " if c.get("distillation") else "")
             + "Sampling: "
             f"{c.get('default_solver', 'ddim')}, {c['default_steps']} steps"
-            + (f", guided by {describe_guide(c['guide'])} (diffsampler_rt.guidance)"
-               if c.get("guide") else "")
-            + ("; the starting noise's coarse modes scaled: "
-               f"{describe_coarse(c['coarse_noise'])} (diffsampler_rt.coarse_noise)"
-               if c.get("coarse_noise") else "")
-            + _structure_text(c)
-            + (f"; then sliced-OT {describe_sliced(c['sliced_ot'])} (diffsampler_rt.sliced_ot)"
-               if c.get("sliced_ot") else "")
-            + ("; density deviations at large scales scaled by 1 - gain: "
-               f"{describe_even(c['even_out'])} (diffsampler_rt.low_frequencies)"
-               if c.get("even_out") else "")
-            + ("; each axis's deviations from evenly spread positions scaled: "
-               f"{describe_projection(c['projection_gain'])} (diffsampler_rt.projections)"
-               if c.get("projection_gain") is not None else "")
-            + (f"; pairs closer than {describe_spacing(c['min_spacing'])} pushed apart "
-               "(diffsampler_rt.spacing)" if c.get("min_spacing") else "") + ".")
+            + "; then the card's pipeline, in order: "
+            + "; ".join(f"{i}. {line}" for i, line in enumerate(describe_pipeline(c["pipeline"])))
+            + " (diffsampler_rt.finish).")
 
 
 def _taken_over(r: dict) -> list[str]:
@@ -772,36 +753,6 @@ def _stored_note(r: dict) -> list[str]:
             "spectrum, per-set statistics of batch A, floors, time per set); the example "
             "reference set in the plot is a cached reference set of its size, or a fresh draw "
             "where none is cached."]
-
-
-def _structure_text(c: dict) -> str:
-    if c.get("structure") == "rank1_lattice":
-        sides = c.get("structure_sides")
-        where = (" at n = " + ", ".join(str(k * k) for k in sides) if sides else "")
-        return ("; each set replaced by the rank-1 lattice whose short dual vectors carry most "
-                f"of its power{where} (diffsampler_rt.lattice)")
-    what = {"dyadic_net": "the (0, m, 2)-net structure",
-            "n_rooks": "1-d stratified projections (n-rooks)"}.get(c.get("structure"))
-    if what is not None and "structure_block" in c:
-        what = ("1-d stratified projections (n-rooks, and as in LDBN the aligned "
-                f"{describe_block(c['structure_block'])} of each column and row stratified "
-                "at their own sub-strip widths)")
-    if what is None:
-        return ""
-    sides = f" >= {c['structure_min_side']}" if c.get("structure_min_side", 1) > 1 else ""
-    guide = (f", and on the clean-set prediction of the last {c['structure_guidance']} solver "
-             "steps" if c.get("structure_guidance") else "")
-    hot = (f", the solver starting there from noise at temperature "
-           f"{c['structure_temperature']:g} (its coarse modes at the coarse-noise gain)"
-           if "structure_temperature" in c else "")
-    runs = (f"; at other grid sides (576 here) every run of {c['structure_runs']} cells of a "
-            "column and row in distinct sub-strips of its own width (all of them in a full "
-            "run), aligned with either end" if c.get("structure_runs") else "")
-    prefix = ("; at other n (576 here) the first n points in Sobol' order of a net of the next "
-              "power-of-four size, imposed onto the Owen-scrambled Sobol' nets "
-              "(diffsampler_rt.sobol_orbit)" if c.get("structure_prefix") else "")
-    return (f"; {what} imposed on the decoded sets at power-of-two grid sides{sides}{guide}"
-            f"{hot}{runs} (diffsampler_rt.structure){prefix}")
 
 
 def _stored_option(source: bool | str | None) -> str:

@@ -40,7 +40,8 @@ sys.path.insert(0, str(ROOT))
 import diffsampler_rt  # noqa: E402
 from benchmarks.common import model_hash  # noqa: E402
 from diffsampler_rt.grid import decode  # noqa: E402
-from diffsampler_rt.spacing import enforce_min_spacing, radius  # noqa: E402
+from diffsampler_rt.finish.pipeline import find  # noqa: E402
+from diffsampler_rt.spacing import enforce_min_spacing  # noqa: E402
 from diffsampler_rt.structure import impose_dyadic_net  # noqa: E402
 from diffsampler_rt.schedule import timesteps  # noqa: E402
 from diffsampler_rt.solvers import solve  # noqa: E402
@@ -161,8 +162,9 @@ def main() -> None:
                  else "") + ").", "", head,
               row("reference B (floor)", floor, ref, spec),
               row(f"model ({m.card['default_solver']} {m.card['default_steps']})", gen, ref, spec)]
-    spaced = enforce_min_spacing(gen, radius(m.card, n))
-    lines.append(row(f"+ minimum spacing {m.card['min_spacing']:g} / sqrt(n) (runtime; "
+    c = find(m.card["pipeline"], "min_spacing")["c"]  # a number in these models' cards
+    spaced = enforce_min_spacing(gen, c / np.sqrt(n))
+    lines.append(row(f"+ minimum spacing {c:g} / sqrt(n) (runtime; "
                      f"{100 * np.mean(np.any(spaced != gen, axis=-1)):.1f} % of the points "
                      "moved)", spaced, ref, spec, f"{k * _torus_shift(spaced, gen).mean():.3f}"))
     for t, times in ((30, 1), (30, 4), (60, 1), (60, 4), (120, 4)):

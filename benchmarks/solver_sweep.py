@@ -47,11 +47,13 @@ def parse_setting(text: str) -> tuple:
 
 
 def load_with(name: str, guidance: int | None) -> "diffsampler_rt.Model":
-    """The model, its card's structure_guidance replaced when ``guidance`` is given."""
+    """The model, its pipeline's structure_guidance steps replaced when ``guidance`` is given."""
     if guidance is None:
         return diffsampler_rt.load(name)
     model = diffsampler_rt.Model(diffsampler_rt.load(name).path)  # a private copy
-    model.card = {**model.card, "structure_guidance": guidance}
+    pipeline = [{**e, "steps": guidance} if e["step"] == "structure_guidance" else e
+                for e in model.card["pipeline"]]
+    model.card = {**model.card, "pipeline": pipeline}
     return model
 
 

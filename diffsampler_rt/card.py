@@ -78,7 +78,9 @@ def parse_card(meta: Mapping[str, str], source: str) -> dict[str, Any]:
     if card.get("default_solver", "ddim") not in SOLVERS:
         raise ModelFormatError(f"{source}: unknown default solver {card['default_solver']!r}")
     card.setdefault("default_solver", "ddim")  # cards written before the field existed
-    card.setdefault("pipeline", [])
+    if "pipeline" not in card:
+        raise ModelFormatError(f"{source}: a format-{FORMAT_VERSION} model card needs a "
+                               "'pipeline' (at least [{\"step\": \"thin\"}])")
     if problem := pipeline_problem(card["pipeline"]):
         raise ModelFormatError(f"{source}: {problem}")
     structures = [e["step"] for e in card["pipeline"] if e["step"] in STRATIFIED_ONLY]

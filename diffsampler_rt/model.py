@@ -235,7 +235,11 @@ class Model:
         ts = timesteps(T, min(s, T))
         # built now, so that a missing or mismatched guide fails before any work
         eps_fn = plan.denoiser(self.denoise, plan.context(n, model=self, timesteps=ts))
-        return self._blocks(plan, n, c, per_batch, rng, ts, solver, eps_fn, progress)
+
+        def run(x: np.ndarray, noise) -> np.ndarray:  # the solver, from x to clean offsets
+            return solve(solver, eps_fn, x, self.alpha_bar, ts, noise)
+
+        return self._blocks(plan, n, c, per_batch, rng, run, progress)
 
     def _warn_if_undistilled(self, steps: int, solver: str) -> None:
         card = self.card
@@ -255,8 +259,7 @@ class Model:
         return per_batch
 
     def _blocks(self, plan: finishing.Plan, n: int, c: int, per_batch: int,
-                rng: np.random.Generator, ts: np.ndarray, solver: str, eps_fn,
-                progress: bool):
+                rng: np.random.Generator, run, progress: bool):
         """noise -> solver -> decode -> point steps -> density map, a batch at a time."""
         streams = rng.spawn(c)  # one per set: results do not depend on the batching
         bar = Progress(c, f"{self.name} n={n}", enabled=progress)
@@ -270,7 +273,7 @@ class Model:
             def noise(shape: tuple[int, ...], sub=sub) -> np.ndarray:
                 return np.stack([g.standard_normal(shape[1:]) for g in sub])
 
-            x = solve(solver, eps_fn, x, self.alpha_bar, ts, noise)
+            x = run(x, noise)
             bar.update(len(sub))
             pts = decode(x / float(self.card["offset_scale"]),
                          stratified=self.card["embedding"] == "stratified", toroidal=toroidal)

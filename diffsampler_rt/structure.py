@@ -45,36 +45,6 @@ STRUCTURES = ("dyadic_net", "n_rooks", "rank1_lattice")
 ANY_SIDE = ("rank1_lattice",)
 
 
-def applies(card: dict, k: int) -> bool:
-    """Whether the card asks for a structure that exists at grid side k (and, with
-    ``"structure_sides"``, lists k among the sides it is imposed at)."""
-    name = card.get("structure")
-    exists = name in ANY_SIDE or k & (k - 1) == 0 or runs_at(card, k) is not None
-    return (name in STRUCTURES and exists and k >= card.get("structure_min_side", 1)
-            and k in card.get("structure_sides", [k]))
-
-
-def runs_at(card: dict, k: int) -> int | None:
-    """The card's ``"structure_runs"`` R at a grid side k that is not a power of two and
-    holds a full run (k >= R), else None."""
-    run = card.get("structure_runs")
-    if card.get("structure") != "n_rooks" or not run or k & (k - 1) == 0 or k < run:
-        return None
-    return run
-
-
-def block_at(card: dict, k: int) -> int | None:
-    """The card's ``"structure_block"`` at grid side k: one B for every side, or per side
-    from ``{"sides": [K, ...], "block": [B, ...]}`` (None, plain n-rooks, at a side not
-    listed); at a side with runs (:func:`runs_at`), the run."""
-    if (run := runs_at(card, k)) is not None:
-        return run
-    block = card.get("structure_block")
-    if isinstance(block, dict):
-        return dict(zip(block["sides"], block["block"])).get(k)
-    return block
-
-
 def describe_block(block: int | dict) -> str:
     """"blocks of 32 cells and up", or per side "blocks of 32 cells and up at k = 64, 64
     cells and up at k = 128"."""

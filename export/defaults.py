@@ -45,6 +45,9 @@ def set_defaults(path: str | Path, *, solver: str | None = None,
         raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
 
     def edit(card: dict) -> None:
+        if steps is not None and steps > card["schedule"]["num_steps"]:
+            raise ValueError(f"steps must be at most the schedule's "
+                             f"{card['schedule']['num_steps']}, got {steps}")
         if solver is not None:
             card["default_solver"] = solver
         if steps is not None:

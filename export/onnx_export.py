@@ -53,6 +53,9 @@ def model_card(cfg: TrainConfig, *, training_steps: int, train_seconds: float | 
         "default_steps": cfg.default_sample_steps,
         "default_solver": cfg.default_solver,
         "weights": weights,
+        # what runs after the network: thinning to n only, until the fit's calibration or
+        # `python -m export pipeline` adds steps
+        "pipeline": [{"step": "thin", "drop": "random"}],
         "inputs": {"x": "float32 (batch, 2, k, k) noisy scaled offsets",
                    "t": "float32 (batch,) timestep index in [0, T)"},
         "outputs": {"eps": "float32 (batch, 2, k, k) predicted noise"},

@@ -65,6 +65,10 @@ def edit_pipeline(path: str | Path, *, add: str | None = None, at: int | None = 
             del pipe[_index(pipe, remove)]
         elif update is not None:
             entry = pipe[_index(pipe, update)]
+            if "model" in params and not {"network_sha256", "sha256"} & set(params):
+                # another guide: its digest is taken anew (with_guide_digests)
+                entry.pop("network_sha256", None)
+                entry.pop("sha256", None)
             entry.update(params)
             for key in [k for k, v in entry.items() if v is None]:
                 del entry[key]

@@ -94,3 +94,39 @@ def session_entry(opts, key: str) -> str | None:
         return opts.get_session_config_entry(key)
     except RuntimeError:
         return None
+
+
+def changed_pipeline_error(model: str, edit, key: str) -> str:
+    """The message of the ModelFormatError matching ``key`` that parse_card raises on bundled
+    ``model``'s card after ``edit`` (a function changing a deep copy of its "pipeline" list
+    in place, or returning a new list)."""
+    import copy
+    import json
+
+    import diffsampler_rt
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    from diffsampler_rt.errors import ModelFormatError
+    card = copy.deepcopy(diffsampler_rt.load(model).card)
+    changed = edit(card["pipeline"])
+    if changed is not None:
+        card["pipeline"] = changed
+    with pytest.raises(ModelFormatError, match=key) as err:
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    return str(err.value)
+
+
+def pipeline_card_error(model: str, pipeline: list, text: str) -> str:
+    """The message of the ModelFormatError that parse_card raises on bundled ``model``'s
+    card with its ``"pipeline"`` replaced by ``pipeline``; checked to contain ``text``
+    (plain text, not a pattern)."""
+    import copy
+    import json
+
+    import diffsampler_rt
+    from diffsampler_rt.card import CARD_KEY, parse_card
+    from diffsampler_rt.errors import ModelFormatError
+    card = {**copy.deepcopy(diffsampler_rt.load(model).card), "pipeline": pipeline}
+    with pytest.raises(ModelFormatError) as err:
+        parse_card({CARD_KEY: json.dumps(card)}, "m")
+    assert text in str(err.value), (text, str(err.value))
+    return str(err.value)

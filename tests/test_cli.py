@@ -68,7 +68,11 @@ def test_list_and_info(capsys):
     # one column each: every line's fields start where the others' do
     assert len({line.index(" sampler=") for line in lines.values()}) == 1
     assert main(["info", "rank1"]) == 0
-    assert '"sampler": "rank1"' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert '"sampler": "rank1"' in out
+    # the card's finishing pipeline, one step a line, in order (format 2)
+    steps = __import__("re").findall(r"(?m)^  (\d+)\. (\w+): ", out)
+    assert steps == [("0", "rank1_lattice"), ("1", "thin")]
 
 
 @pytest.mark.parametrize("args,match", [

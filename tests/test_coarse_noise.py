@@ -10,10 +10,12 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, coarse_noise
+from diffsampler_rt.card import CARD_KEY, parse_card
 from diffsampler_rt.coarse_noise import coarse_filter, gain_at, settings_problem, shape_noise
 from diffsampler_rt.spectrum import radial_spectrum
+from export.__main__ import main as export_main
 
-from .conftest import changed_card_error
+from .conftest import changed_pipeline_error
 
 
 def test_only_the_coarse_modes_are_scaled():
@@ -60,32 +62,82 @@ def test_per_size_gain():
     ({"cut": 0.25, "n": [64, 256], "gain": [1]}, "same length"),
     ({"cut": 0.25, "n": [64, 256], "gain": [1, -1]}, "got [1, -1]"),
 ])
-def test_card_settings_are_validated(spec, message):
-    from diffsampler_rt.card import CARD_KEY, parse_card
+def test_settings_problem(spec, message):
     assert message in settings_problem(spec)
-    card = {**diffsampler_rt.load("rank1").card, "coarse_noise": spec}
-    with pytest.raises(ModelFormatError, match="model card field 'coarse_noise'"):
-        parse_card({CARD_KEY: json.dumps(card)}, "m")
     assert settings_problem({"cut": 0.25, "n": [64, 256], "gain": [1, 1.5]}) is None
 
 
+_TABLE = "or a per-size table"
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"cut": 0, "gain": 1.4}, "'cut' must be a number in (0, 1] " + _TABLE),
+    ({"cut": 1.5, "gain": 1.4}, "got 1.5"),
+    ({"cut": 0.25, "gain": 0}, "'gain' must be a number in (0, 4] " + _TABLE),
+    ({"cut": 0.25, "gain": 5.0}, "got 5.0"),
+    ({"cut": 0.25, "gain": True}, "got True"),
+    ({"cut": 0.25, "gain": "1.4"}, "got '1.4'"),
+    ({"cut": 0.25, "gain": float("nan")}, "got nan"),
+    ({"gain": {"n": [256, 64], "values": [1, 2]}}, "'gain' table must be"),
+    ({"gain": {"n": [64, 256], "values": [1]}}, "'gain' table must be"),
+    ({"gain": {"n": [64, 256], "gain": [1, 1.5]}}, "'gain' table must be"),  # format 1's keys
+    ({"gain": {"n": [64, 256], "values": [1, -1]}},
+     "'gain' values must each be a number in (0, 4], got -1"),
+    ({"gain": 1.4, "step_size": 1}, "has no parameter 'step_size'"),
+])
+def test_card_settings_are_validated(params, message):
+    """A coarse_noise pipeline entry with a bad value is refused, the entry and the field
+    named; a format-2 card with format 1's top-level field is refused too."""
+    err = changed_pipeline_error("rank1", lambda pipe: pipe.insert(
+        0, {"step": "coarse_noise", **params}), "pipeline entry 0")
+    assert "step 'coarse_noise'" in err and message in err
+    ok = {"step": "coarse_noise", "cut": 0.25, "gain": {"n": [64, 256], "values": [1, 1.5]}}
+    card = {**diffsampler_rt.load("rank1").card}
+    card["pipeline"] = [ok, *card["pipeline"]]
+    assert parse_card({CARD_KEY: json.dumps(card)}, "m")["pipeline"][0] == ok
+    old = {**diffsampler_rt.load("rank1").card, "coarse_noise": {"cut": 0.25, "gain": 1.4}}
+    with pytest.raises(ModelFormatError, match="field 'coarse_noise' belongs to format 1"):
+        parse_card({CARD_KEY: json.dumps(old)}, "m")
+
+
+def _refused(path, argv, capsys, *texts):
+    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
+    text, and leaves the file as it was."""
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert export_main(["pipeline", str(path), *argv]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith("error: ") and err.count("\n") == 1 and not out
+    for text in texts:
+        assert text in err, (text, err)
+    assert path.read_bytes() == before
+
+
+def _steps(model) -> list:
+    return [e["step"] for e in model.card["pipeline"]]
+
+
 def test_card_gain_is_applied(tmp_path, capsys):
-    """set-defaults writes the card field; the runtime shapes the noise at the sizes where the
-    gain is not 1, batches alike, and ``structure=False`` starts from white noise."""
-    from export.__main__ import main as export_main
+    """``python -m export pipeline`` writes the coarse_noise entry; the runtime shapes the
+    noise at the sizes where the gain is not 1, batches alike, and ``structure=False``
+    starts from white noise."""
     path = tmp_path / "m.onnx"
     shutil.copy(diffsampler_rt.load("ldbn").path, path)
-    assert export_main(["set-defaults", str(path), "--coarse-noise", "none"]) == 0
-    assert "coarse noise none" in capsys.readouterr().out
+    assert export_main(["pipeline", str(path), "--remove", "coarse_noise"]) == 0
+    assert "coarse_noise" not in capsys.readouterr().out
+    assert "coarse_noise" not in _steps(diffsampler_rt.Model(path))
     unshaped = diffsampler_rt.Model(path).generate(256, 3, seed=2)
+    unshaped64 = diffsampler_rt.Model(path).generate(64, 3, seed=2)
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=2, structure=False)
              for n in (64, 256)}
-    assert export_main(["set-defaults", str(path), "--coarse-noise", "64:1,256:1.5",
-                        "--coarse-noise-cut", "0.5"]) == 0
-    assert "coarse noise gain 1 / 1.5 at n = 64 / 256 (log-linear) up to 0.5" in \
-        capsys.readouterr().out
+    assert export_main(["pipeline", str(path), "--add", "coarse_noise", "--at", "0",
+                        "--gain", "64:1,256:1.5", "--cut", "0.5"]) == 0
+    assert ("0. coarse_noise: starting noise: gain 1 / 1.5 at n = 64 / 256 (log-linear) up "
+            "to 0.5 x Nyquist") in capsys.readouterr().out
     m = diffsampler_rt.Model(path)
-    assert m.card["coarse_noise"] == {"cut": 0.5, "n": [64, 256], "gain": [1.0, 1.5]}
+    assert m.card["pipeline"][0] == {"step": "coarse_noise", "cut": 0.5,
+                                     "gain": {"n": [64, 256], "values": [1.0, 1.5]}}
+    np.testing.assert_array_equal(m.generate(64, 3, seed=2), unshaped64)  # gain 1 at 64
     np.testing.assert_array_equal(m.generate(64, 3, seed=2, structure=False), plain[64])
     np.testing.assert_array_equal(m.generate(256, 3, seed=2, structure=False), plain[256])
     shaped = m.generate(256, 3, seed=2)
@@ -93,16 +145,24 @@ def test_card_gain_is_applied(tmp_path, capsys):
     np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=2))),
                                   shaped)
     assert not np.allclose(shaped, unshaped)
-    assert export_main(["set-defaults", str(path), "--coarse-noise", "1.2"]) == 0
-    assert diffsampler_rt.Model(path).card["coarse_noise"] == {"cut": 0.25, "gain": 1.2}
-    for bad, err in ((["--coarse-noise-cut", "0.5"], "--coarse-noise-cut needs --coarse-noise"),
-                     (["--coarse-noise", "x"], "--coarse-noise must be a number"),
-                     (["--coarse-noise", "9"], "gain must be numbers in (0, 4], got 9.0")):
-        capsys.readouterr()
-        assert export_main(["set-defaults", str(path), *bad]) == 2
-        assert err in capsys.readouterr().err
-    assert export_main(["set-defaults", str(path), "--coarse-noise", "none"]) == 0
-    assert "coarse_noise" not in diffsampler_rt.Model(path).card
+    assert export_main(["pipeline", str(path), "--update", "coarse_noise", "--gain", "1.2"]) == 0
+    assert diffsampler_rt.Model(path).card["pipeline"][0] == {"step": "coarse_noise",
+                                                              "cut": 0.5, "gain": 1.2}
+    for bad, err in ((["--cut", "0.5"], "parameters need --add, --update or --replace"),
+                     (["--update", "coarse_noise", "--gain", "x"],
+                      "step 'coarse_noise': 'gain' must be a number in (0, 4]"),
+                     (["--update", "coarse_noise", "--gain", "9"], "got 9"),
+                     (["--update", "coarse_noise", "--cut", "0"],
+                      "step 'coarse_noise': 'cut' must be a number in (0, 1]"),
+                     (["--update", "coarse_noise", "--c", "0.5"],
+                      "step 'coarse_noise' has no parameter 'c'")):
+        _refused(path, bad, capsys, err)
+    assert export_main(["pipeline", str(path), "--remove", "coarse_noise"]) == 0
+    assert "coarse_noise" not in _steps(diffsampler_rt.Model(path))
+
+
+def _without_coarse_noise(m):
+    m.card["pipeline"] = [e for e in m.card["pipeline"] if e["step"] != "coarse_noise"]
 
 
 def test_a_gain_above_one_adds_large_scale_variation():
@@ -110,11 +170,11 @@ def test_a_gain_above_one_adds_large_scale_variation():
     the grid's frequencies (below 0.125 sqrt(n) in the radial spectrum's units) raises the
     sets' power there, where the net's sets are more even than the sampler's, and leaves the
     spectrum's peak about as it was."""
-    m = diffsampler_rt.load("ldbn")
-    m.card.pop("coarse_noise")  # the bundled card's own gain, measured below
+    m = diffsampler_rt.Model("ldbn")  # its own instance: the cached one is left alone
+    _without_coarse_noise(m)  # the bundled card's own gain, measured below
     plain = m.generate(256, 24, seed=4)
     white = m.generate(256, 24, seed=4, structure=False)
-    m.card["coarse_noise"] = {"cut": 0.25, "gain": 1.5}
+    m.card["pipeline"].insert(0, {"step": "coarse_noise", "cut": 0.25, "gain": 1.5})
     f, p = radial_spectrum(plain)
     _, s = radial_spectrum(m.generate(256, 24, seed=4))
     low = (f > 0) & (f < 0.125)  # the bins below 0.125 sqrt(n)
@@ -134,9 +194,9 @@ def test_the_bundled_ldbn_gain_brings_its_integration_error_to_the_samplers():
     from benchmarks.fidelity import integration_errors
     from trainer.samplers import sample
     ref = integration_errors(sample("ldbn", 256, count=128, seed=[7, 256]))["gauss_mse"].mean()
-    m = diffsampler_rt.load("ldbn")
+    m = diffsampler_rt.Model("ldbn")  # its own instance: the cached one is left alone
     shaped = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
-    m.card.pop("coarse_noise")
+    _without_coarse_noise(m)
     white = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
     assert white < 0.9 * ref
     assert abs(shaped / ref - 1) < 0.08
@@ -152,40 +212,57 @@ def test_a_temperature_scales_every_other_mode():
     np.testing.assert_allclose(shape_noise(x, 0.9, 1.0, rest=0.9), 0.9 * x)  # one factor
 
 
-@pytest.mark.parametrize("card_change, message", [
-    ({"structure_temperature": 0.9, "structure": None, "structure_min_side": None,
-      "structure_guidance": None}, "needs a structure"),
-    ({"structure_temperature": 0}, "number in (0, 2], got 0"),
-    ({"structure_temperature": "0.9"}, "got '0.9'"),
-    ({"structure_temperature": True}, "got True"),
+def _structured_noise(pipe: list) -> dict:
+    """ldbn_fast's coarse_noise entry that runs where its n-rooks structure holds."""
+    return next(e for e in pipe if e["step"] == "coarse_noise" and e.get("where") == "structured")
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"where": "structured"},
+     "pipeline entry 0 ('coarse_noise') needs a structure step in the pipeline"),
+    ({"temperature": 0},
+     "pipeline entry 1: step 'coarse_noise': 'temperature' must be a number in (0, 2], got 0"),
+    ({"temperature": "0.9"}, "got '0.9'"),
+    ({"temperature": True}, "got True"),
+    ({"where": "somewhere"}, "'where' must be one of ['structured', 'unstructured']"),
 ])
-def test_structure_temperature_is_validated(card_change, message):
-    assert message in changed_card_error("ldbn_fast", card_change, "structure_temperature")
+def test_structure_temperature_is_validated(change, message):
+    """The temperature where the structure holds (format 1's structure_temperature): a
+    coarse_noise entry with "where": "structured" needs a structure step, and its
+    temperature a number in (0, 2]."""
+    def edit(pipe):
+        _structured_noise(pipe).update(change)
+        if change.get("where") == "structured":  # the entry and thinning, no structure
+            return [_structured_noise(pipe), {"step": "thin"}]
+    assert message in changed_pipeline_error("ldbn_fast", edit, "pipeline entry")
 
 
 def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, capsys):
-    """set-defaults writes it; the runtime starts the solver from cooler noise at the sizes
-    where the card imposes its structure (ldbn_fast without its runs: power-of-two sides >=
-    16), only there and only with ``structure=True``; ``--structure none`` removes it with
-    the structure."""
-    from export.__main__ import main as export_main
+    """``python -m export pipeline`` writes it; the runtime starts the solver from cooler
+    noise at the sizes where the card imposes its structure (ldbn_fast without its runs:
+    power-of-two sides >= 16), only there and only with ``structure=True``; the structure
+    cannot be removed while an entry runs only where it holds."""
     path = tmp_path / "m.onnx"
     shutil.copy(diffsampler_rt.load("ldbn_fast").path, path)
-    assert export_main(["set-defaults", str(path), "--structure-temperature", "none",
-                        "--structure-runs", "none"]) == 0
+    i = diffsampler_rt.Model(path).card["pipeline"].index(
+        _structured_noise(diffsampler_rt.Model(path).card["pipeline"]))
+    assert export_main(["pipeline", str(path), "--update", str(i), "--temperature", "none"]) == 0
+    assert export_main(["pipeline", str(path), "--update", "n_rooks", "--runs", "none"]) == 0
     before = {n: diffsampler_rt.Model(path).generate(n, 2, seed=3) for n in (64, 256, 576)}
     white = diffsampler_rt.Model(path).generate(256, 2, seed=3, structure=False)
     capsys.readouterr()
-    assert export_main(["set-defaults", str(path), "--structure-temperature", "0.8"]) == 0
-    assert "starting noise at temperature 0.8" in capsys.readouterr().out
+    assert export_main(["pipeline", str(path), "--update", str(i), "--temperature", "0.8"]) == 0
+    assert (f"{i}. coarse_noise: starting noise: gain" in (out := capsys.readouterr().out)
+            and "other modes x 0.8 (only where the structure holds)" in out)
     m = diffsampler_rt.Model(path)
-    assert m.card["structure_temperature"] == 0.8
-    for n in (64, 576):  # k = 8 below the card's structure_min_side, k = 24 not a power of 2
+    assert m.card["pipeline"][i]["temperature"] == 0.8
+    assert m.card["pipeline"][i]["where"] == "structured"
+    for n in (64, 576):  # k = 8 below n_rooks' min_side, k = 24 not a power of 2
         np.testing.assert_array_equal(m.generate(n, 2, seed=3), before[n])
     cool = m.generate(256, 2, seed=3)
     assert not np.allclose(cool, before[256])
     np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False), white)
-    assert export_main(["set-defaults", str(path), "--structure-temperature", "x"]) == 2
-    assert "--structure-temperature must be a number or none" in capsys.readouterr().err
-    assert export_main(["set-defaults", str(path), "--structure", "none"]) == 0
-    assert "structure_temperature" not in diffsampler_rt.Model(path).card
+    _refused(path, ["--update", str(i), "--temperature", "x"], capsys,
+             "step 'coarse_noise': 'temperature' must be a number in (0, 2], got 'x'")
+    _refused(path, ["--remove", "n_rooks"], capsys, "needs a structure step in the pipeline")
+    assert diffsampler_rt.Model(path).card["pipeline"][i]["temperature"] == 0.8

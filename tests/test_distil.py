@@ -127,6 +127,7 @@ def test_guided_teacher_trajectories_follow_its_card_guide(tiny_onnx, tmp_path, 
     per grid size (0 at k = 4 here: the plain teacher's), and are cached apart."""
     import shutil
 
+    from diffsampler_rt.finish.pipeline import find
     from diffsampler_rt.guidance import guided
     from export.__main__ import main as export_main
     from export.onnx_export import export_model, model_card
@@ -142,15 +143,17 @@ def test_guided_teacher_trajectories_follow_its_card_guide(tiny_onnx, tmp_path, 
     export_model(net, model_card(cfg, training_steps=0), tmp_path / "weak.onnx")
     teacher = tmp_path / "tiny.onnx"
     shutil.copy(tiny_onnx, teacher)
-    assert export_main(["set-defaults", str(teacher), "--guide", "weak",
-                        "--guide-weight", "16:0,64:1"]) == 0
+    assert export_main(["pipeline", str(teacher), "--add", "guide", "--model", "weak",
+                        "--weight", "16:0,64:1", "--at", "0"]) == 0
     m = diffsampler_rt.Model(teacher)
+    spec = find(m.card["pipeline"], "guide")
+    assert (spec["model"], spec["weight"]) == ("weak", {"n": [16, 64], "values": [0, 1]})
     kw = dict(teacher_steps=4, student_steps=2, solver="ddim", seed=7)
     plain8, plain4 = (teacher_trajectories(m, k, 3, **kw) for k in (8, 4))
     guided8 = teacher_trajectories(m, 8, 3, guidance=True, **kw)
     x = np.random.default_rng([7, 8]).standard_normal((3, 2, 8, 8))
     ts = timesteps(len(m.alpha_bar), 4)
-    np.testing.assert_allclose(guided8[-1], solve("ddim", guided(m.denoise, m.guide().denoise,
+    np.testing.assert_allclose(guided8[-1], solve("ddim", guided(m.denoise, m.guide(spec).denoise,
                                                                  1.0), x, m.alpha_bar, ts),
                                atol=1e-5)
     assert np.abs(guided8[-1] - plain8[-1]).max() > 1e-3
@@ -527,13 +530,23 @@ def test_the_card_rollout_is_the_runtimes_structure_guided_generation(tiny_onnx,
     from diffsampler_rt.solvers import project_x0
     from diffsampler_rt.structure import impose_n_rooks
     monkeypatch.setenv("DIFFSAMPLER_CACHE", str(tmp_path / "cache"))
+    coarse = {"step": "coarse_noise", "gain": {"n": [16, 64], "values": [1.5, 1.5]},
+              "cut": 0.25}
+    pipeline = [{**coarse, "where": "unstructured"},
+                {**coarse, "temperature": 0.9, "where": "structured"},
+                {"step": "structure_guidance", "steps": 2}, {"step": "n_rooks"},
+                {"step": "thin", "drop": "random"}]
+    spectrum = dict(student_steps=4, teacher_steps=4, spectrum_weight=1.0,
+                    spectrum_sizes=(8,), spectrum_sets=2, spectrum_radius=2.0)
+    cfg = tiny_distil(tiny_onnx, spectrum_card={"pipeline": pipeline}, **spectrum)
+    d = Distiller(cfg, tmp_path / "run", progress=False)
+    assert d.rollout_card == {**d.teacher_card, "pipeline": pipeline}
+    # the same settings as format-1 card fields: converted to that pipeline
     settings = {"structure": "n_rooks", "structure_guidance": 2, "structure_temperature": 0.9,
                 "coarse_noise": {"gain": [1.5, 1.5], "n": [16, 64], "cut": 0.25}}
-    cfg = tiny_distil(tiny_onnx, student_steps=4, teacher_steps=4, spectrum_weight=1.0,
-                      spectrum_sizes=(8,), spectrum_sets=2, spectrum_radius=2.0,
-                      spectrum_card=settings)
-    d = Distiller(cfg, tmp_path / "run", progress=False)
-    assert d.rollout_card == {**d.teacher_card, **settings}
+    old = Distiller(tiny_distil(tiny_onnx, spectrum_card=settings, **spectrum),
+                    tmp_path / "old", progress=False)
+    assert old.rollout_card == d.rollout_card
     # offsets read at a scale that keeps the untrained net's points inside their cells
     scale = 1e3
     d.teacher_card = {**d.teacher_card, "offset_scale": scale}
@@ -576,3 +589,11 @@ def test_spectrum_card_is_a_model_or_valid_card_entries(tiny_onnx, tmp_path, mon
     with pytest.raises(ModelFormatError, match="structure_guidance"):
         Distiller(tiny_distil(tiny_onnx, spectrum_card={"structure_guidance": -1}, **spectrum),
                   tmp_path / "b", progress=False)
+    bad = [{"step": "structure_guidance", "steps": 0}, {"step": "n_rooks"}, {"step": "thin"}]
+    with pytest.raises(ModelFormatError, match="step 'structure_guidance': 'steps' must be"):
+        Distiller(tiny_distil(tiny_onnx, spectrum_card={"pipeline": bad}, **spectrum),
+                  tmp_path / "c", progress=False)
+    with pytest.raises(ModelFormatError, match="needs a structure step"):  # none to steer by
+        Distiller(tiny_distil(tiny_onnx, spectrum_card={"pipeline": [
+            {"step": "structure_guidance", "steps": 2}, {"step": "thin"}]}, **spectrum),
+            tmp_path / "d", progress=False)

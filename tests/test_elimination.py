@@ -8,6 +8,8 @@ import pytest
 import diffsampler_rt
 from diffsampler_rt import elimination
 from diffsampler_rt.elimination import eliminate, hexagonal_spacing
+from diffsampler_rt.finish.base import value
+from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.spectrum import periodogram
 from trainer.stats import min_distance
 
@@ -95,7 +97,9 @@ def test_blue_noise_keeps_its_spacing_at_any_n():
     # the card's spacing radius at n = 1000 holds, as at the square sizes
     m = diffsampler_rt.load("poisson_disk_fast")
     sets = m.generate(1000, 4, seed=2)
-    c = m.card["min_spacing"]
+    spacing = find(m.card["pipeline"], "min_spacing")
+    assert find(m.card["pipeline"], "thin")["drop"] == "crowded"
+    c = value(spacing, "c", 1000)
     assert (min_distance(sets) >= 0.99 * c / np.sqrt(1000)).all()
 
 
@@ -172,11 +176,14 @@ def test_thinned_sets_keep_the_samplers_large_scale_character():
 def test_models_without_a_spacing_lose_points_at_random(tmp_path):
     # sobol_owen's sampler puts points close together: its thinned sets keep that (elimination
     # would take the closest pairs apart); the streams make it reproducible. (The bundled
-    # card makes such sizes as Sobol' prefixes instead: structure_prefix, taken off here.)
-    from export.defaults import set_defaults
+    # card makes such sizes as Sobol' prefixes instead: its dyadic_net's prefix, taken off
+    # here.)
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "owen.onnx"
     shutil.copy(diffsampler_rt.load("sobol_owen_fast").path, path)
-    set_defaults(path, structure_prefix=False)
+    card = edit_pipeline(path, update="dyadic_net", params={"prefix": None})
+    assert "prefix" not in find(card["pipeline"], "dyadic_net")
+    assert find(card["pipeline"], "thin")["drop"] == "random"
     m = diffsampler_rt.Model(path)
     sets = m.generate(1000, 4, seed=1)
     full = m.generate(1024, 4, seed=1)

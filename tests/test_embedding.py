@@ -82,15 +82,16 @@ def test_strip_bounds_respect_floor_convention():
         np.testing.assert_array_equal(np.floor(hi * k), np.arange(k))
 
 
-def test_decode_toroidal_wraps_instead_of_clipping():
+def test_decode_toroidal_wraps_instead_of_reflecting():
     grid = np.zeros((2, 4, 4))
     grid[0, 0, 3] = 0.75  # cell (row 0, col 3): x = (3.5 + 0.75) / 4 = 1.0625
     grid[1, 0, 0] = -1.0  # cell (row 0, col 0): y = (0.5 - 1) / 4 = -0.125
-    clipped, wrapped = decode(grid), decode(grid, toroidal=True)
-    assert clipped[3, 0] == np.nextafter(1.0, 0.0) and clipped[0, 1] == 0.0
+    reflected, wrapped = decode(grid), decode(grid, toroidal=True)
+    # in the square a point past an edge is folded back as far inside, never onto the edge
+    np.testing.assert_allclose([reflected[3, 0], reflected[0, 1]], [0.9375, 0.125])
     np.testing.assert_allclose([wrapped[3, 0], wrapped[0, 1]], [0.0625, 0.875])
     np.testing.assert_array_equal(np.delete(wrapped, [0, 3], axis=0),
-                                  np.delete(clipped, [0, 3], axis=0))
+                                  np.delete(reflected, [0, 3], axis=0))
     from diffsampler_rt.grid import wrap
     assert np.array_equal(wrap(np.array([[-1e-17, 1.0]])),  # -1e-17 + 1 rounds to 1.0
                           [[np.nextafter(1.0, 0.0), 0.0]])

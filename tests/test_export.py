@@ -119,7 +119,13 @@ def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
         set_defaults(path, steps=10**6)
     res = subprocess.run([sys.executable, "-m", "export", "set-defaults", str(path),
                           "--steps", "0"], capture_output=True, text=True)
-    assert res.returncode == 2 and "steps must be a positive integer, got 0" in res.stderr
+    assert res.returncode == 2 and "steps must be an integer >= 1, got 0" in res.stderr
+    assert res.stderr.strip().splitlines() == [res.stderr.strip()]  # one line
+    # the finishing steps are no longer set-defaults' business: python -m export pipeline
+    res = subprocess.run([sys.executable, "-m", "export", "set-defaults", str(path),
+                          "--structure", "n_rooks"], capture_output=True, text=True)
+    assert res.returncode == 2 and "--structure" in res.stderr
+    assert diffsampler_rt.Model(path).card["default_steps"] == 6  # the file as it was
 
 
 def test_reexport_with_attention_window(tiny_onnx, tmp_path):

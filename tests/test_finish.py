@@ -216,14 +216,19 @@ def test_a_prefix_structure_picks_the_grid_side():
     assert plan(pipe, 256).k == 16
 
 
+THIN = {"step": "thin"}
+
+
 @pytest.mark.parametrize("pipe, message", [
     ("x", "must be a list"),
     ([{"step": "nope"}], "unknown step 'nope'"),
     ([{"step": "thin", "where": "sometimes"}], "'where'"),
     ([{"step": "thin", "where": "structured"}], "needs a structure step"),
-    ([{"step": "structure_guidance", "steps": 2}], "needs a structure step"),
-    ([{"step": "rank1_lattice"}, {"step": "structure_guidance", "steps": 2}], "cannot steer"),
-    ([{"step": "n_rooks"}, {"step": "dyadic_net"}], "at most one structure"),
+    ([{"step": "structure_guidance", "steps": 2}, THIN], "needs a structure step"),
+    ([{"step": "rank1_lattice"}, {"step": "structure_guidance", "steps": 2}, THIN],
+     "cannot steer"),
+    ([{"step": "n_rooks"}, {"step": "dyadic_net"}, THIN], "at most one structure"),
+    ([{"step": "min_spacing", "c": 0.5}], "needs a 'thin' step"),
 ])
 def test_bad_pipelines_refused(pipe, message):
     assert re.search(message, pipeline_problem(pipe))

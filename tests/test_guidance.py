@@ -1,5 +1,5 @@
-"""Autoguidance (card field "guide"): its card checks, its arithmetic, set-defaults and the
-runtime's use of it."""
+"""Autoguidance (the card pipeline's "guide" step): its card checks, its arithmetic,
+python -m export pipeline and the runtime's use of it."""
 from __future__ import annotations
 
 import json
@@ -10,6 +10,7 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt.errors import ModelFormatError
+from diffsampler_rt.finish.pipeline import find, pipeline_problem
 from diffsampler_rt.guidance import describe, guided, settings_problem, weight_at
 
 DIGEST = "0" * 64
@@ -31,15 +32,53 @@ DIGEST = "0" * 64
     ({"model": "m", "weight": 1, "sha256": "ABC"}, "sha256 must be 64 lower-case hex"),
     ({"model": "m", "weight": 1, "network_sha256": DIGEST[1:]}, "network_sha256 must be 64"),
 ])
-def test_card_settings_are_validated(spec, message):
+def test_format_1_settings_are_validated(spec, message):
     from diffsampler_rt.card import CARD_KEY, parse_card
     assert message in settings_problem(spec)
+    # a format-2 card carrying the old field is refused whatever its value
     card = {**diffsampler_rt.load("rank1").card, "guide": spec}
-    with pytest.raises(ModelFormatError, match="model card field 'guide'"):
+    with pytest.raises(ModelFormatError, match="model card field 'guide' belongs to format 1"):
         parse_card({CARD_KEY: json.dumps(card)}, "m")
     assert settings_problem({"model": "m", "n": [64, 1024], "weight": [0, 1],
                              "network_sha256": DIGEST}) is None
     assert settings_problem({"model": "m", "weight": 1, "sha256": DIGEST}) is None  # older
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"model": "sot_32"}, "step 'guide' needs 'weight'"),
+    ({"weight": 1}, "step 'guide' needs 'model'"),
+    ({"model": "sot_32", "weight": 1, "extra": 2}, "step 'guide' has no parameter 'extra'"),
+    ({"model": "", "weight": 1}, "'model' must be a model name (no directories), got ''"),
+    ({"model": "a/b", "weight": 1}, "'model' must be a model name (no directories), got 'a/b'"),
+    ({"model": 3, "weight": 1}, "'model' must be a model name (no directories), got 3"),
+    ({"model": "m", "weight": -0.5}, "'weight' must be a number in [0, 4]"),
+    ({"model": "m", "weight": 5}, "'weight' must be a number in [0, 4]"),
+    ({"model": "m", "weight": True}, "'weight' must be a number in [0, 4]"),
+    ({"model": "m", "weight": float("nan")}, "'weight' must be a number in [0, 4]"),
+    ({"model": "m", "weight": {"n": [256, 64], "values": [1, 2]}}, "'weight' table must be"),
+    ({"model": "m", "weight": {"n": [64, 256], "values": [1]}}, "'weight' table must be"),
+    ({"model": "m", "weight": {"n": [64, 256], "values": [1, 9]}},
+     "'weight' values must each be a number in [0, 4], got 9"),
+    # (the digest messages say "a guide digest", not which of the two keys)
+    ({"model": "m", "weight": 1, "sha256": "ABC"},
+     "guide digest must be 64 lower-case hex digits, got 'ABC'"),
+    ({"model": "m", "weight": 1, "network_sha256": DIGEST[1:]},
+     f"guide digest must be 64 lower-case hex digits, got {DIGEST[1:]!r}"),
+])
+def test_pipeline_entries_are_validated(params, message):
+    from .conftest import pipeline_card_error
+    entry = {"step": "guide", **params}
+    text = pipeline_card_error("sot", [entry, {"step": "thin"}], message)
+    assert text.startswith("m: pipeline entry 0: step 'guide'")
+    if "weight" in params and "must be a number in [0, 4]" in message:
+        assert text.endswith(f"got {params['weight']!r}")
+
+
+def test_guide_entries_with_a_table_or_either_digest_are_accepted():
+    for good in ({"model": "m", "weight": {"n": [64, 1024], "values": [0, 1]},
+                  "network_sha256": DIGEST},
+                 {"model": "m", "weight": 1, "sha256": DIGEST}):  # older
+        assert pipeline_problem([{"step": "guide", **good}, {"step": "thin"}]) is None
 
 
 def test_per_size_weight_and_words():
@@ -62,29 +101,54 @@ def test_guided_denoiser_extrapolates_away_from_the_guide():
     np.testing.assert_array_equal(x, np.arange(6.0).reshape(1, 2, 3, 1))  # input untouched
 
 
-def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
-    """set-defaults writes the guide with its network's sha256; a model guided by a copy of
-    itself makes the unguided sets (to rounding), guided by another net other sets, where
-    its weight is not 0; structure=False leaves the guide out; a changed, missing or
-    incompatible guide is refused with its name."""
+def _guide(path):
+    """The guide step's parameters in the card of the model file ``path`` (None: no guide)."""
+    return find(diffsampler_rt.Model(path).card["pipeline"], "guide")
+
+
+def test_pipeline_edits_and_generation_with_a_guide(tmp_path, capsys):
+    """python -m export pipeline writes the guide with its network's sha256; a model guided
+    by a copy of itself makes the unguided sets (to rounding), guided by another net other
+    sets, where its weight is not 0; structure=False leaves the guide out; bad values are
+    refused naming them, the file left as it was; a changed, missing or incompatible guide
+    is refused with its name."""
     from export.__main__ import main as export_main
+
+    def pipeline(*args):
+        return export_main(["pipeline", str(path), *args])
+
+    def refused(args, err):
+        before = path.read_bytes()
+        capsys.readouterr()
+        assert pipeline(*args) == 2
+        assert err in capsys.readouterr().err
+        assert path.read_bytes() == before
+
     path = tmp_path / "m.onnx"
     shutil.copy(diffsampler_rt.load("sot").path, path)
     shutil.copy(diffsampler_rt.load("sot").path, tmp_path / "twin.onnx")
-    assert export_main(["set-defaults", str(path), "--guide", "none"]) == 0
+    assert pipeline("--remove", "guide") == 0
+    assert _guide(path) is None
     plain = diffsampler_rt.Model(path).generate(64, 2, seed=3)
     plain_256 = diffsampler_rt.Model(path).generate(256, 1, seed=3)
-    assert export_main(["set-defaults", str(path), "--guide", "twin"]) == 0
-    assert "guide twin, weight 1" in capsys.readouterr().out
+    capsys.readouterr()
+    assert pipeline("--add", "guide", "--at", "0", "--model", "twin", "--weight", "1") == 0
+    assert "0. guide: guided by twin, weight 1\n" in capsys.readouterr().out
     m = diffsampler_rt.Model(path)
-    assert m.card["guide"]["weight"] == 1 and len(m.card["guide"]["network_sha256"]) == 64
+    assert m.card["pipeline"][0]["step"] == "guide"
+    assert _guide(path)["weight"] == 1 and len(_guide(path)["network_sha256"]) == 64
     np.testing.assert_allclose(m.generate(64, 2, seed=3), plain, atol=1e-6)
 
-    assert export_main(["set-defaults", str(path), "--guide", "sot_32",  # the bundled one
-                        "--guide-weight", "64:1,256:0"]) == 0
-    assert "guide sot_32, weight 1 / 0 at n = 64 / 256 (log-linear)" in capsys.readouterr().out
+    # another guide: the bundled one (the old digest dropped, the new one recorded)
+    assert pipeline("--update", "guide", "--model", "sot_32", "--weight", "64:1,256:0",
+                    "--network-sha256", "none") == 0
+    assert ("0. guide: guided by sot_32, weight 1 / 0 at n = 64 / 256 (log-linear)"
+            in capsys.readouterr().out)
     m = diffsampler_rt.Model(path)
-    assert m.guide().path == diffsampler_rt.load("sot_32").path
+    spec = _guide(path)
+    from diffsampler_rt.metadata import network_sha256
+    assert spec["network_sha256"] == network_sha256(diffsampler_rt.load("sot_32").path)
+    assert m.guide(spec).path == diffsampler_rt.load("sot_32").path
     guided_sets = m.generate(64, 2, seed=3)
     assert guided_sets.shape == (2, 64, 2) and np.all((guided_sets >= 0) & (guided_sets < 1))
     assert np.abs(guided_sets - plain).max() > 1e-3
@@ -93,15 +157,22 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
                                                                       structure=False))
     np.testing.assert_array_equal(m.generate(256, 1, seed=3), plain_256)  # weight 0 there
 
-    for bad, err in ((["--guide-weight", "1"], "--guide-weight needs --guide"),
-                     (["--guide", "twin", "--guide-weight", "x"], "--guide-weight must be"),
-                     (["--guide", "twin", "--guide-weight", "9"], "got 9.0"),
-                     (["--guide", "nowhere"], "guide model 'nowhere' was not found")):
-        capsys.readouterr()
-        assert export_main(["set-defaults", str(path), *bad]) == 2
-        assert err in capsys.readouterr().err
+    for bad, err in ((["--weight", "1"], "parameters need --add, --update or --replace"),
+                     (["--update", "guide", "--weight", "x"], "'weight' must be a number in"),
+                     (["--update", "guide", "--weight", "x"], "got 'x'"),
+                     (["--update", "guide", "--weight", "9"],
+                      "step 'guide': 'weight' must be a number in [0, 4]"),
+                     (["--update", "guide", "--weight", "9"], "got 9\n"),
+                     (["--update", "guide", "--model", "a/b"],
+                      "'model' must be a model name (no directories), got 'a/b'"),
+                     (["--update", "guide", "--network-sha256", "abc"],
+                      "guide digest must be 64 lower-case hex digits, got 'abc'"),
+                     (["--add", "guide", "--replace", "guide", "--model", "nowhere",
+                       "--weight", "1"], "guide model 'nowhere' was not found")):
+        refused(bad, err)
 
-    assert export_main(["set-defaults", str(path), "--guide", "twin"]) == 0
+    assert pipeline("--add", "guide", "--replace", "guide", "--model", "twin",
+                    "--weight", "1") == 0
     # an edit of the guide's own card leaves it the same network, so still the guide
     assert export_main(["set-defaults", str(tmp_path / "twin.onnx"), "--steps", "12"]) == 0
     np.testing.assert_allclose(diffsampler_rt.Model(path).generate(64, 2, seed=3), plain,
@@ -114,19 +185,20 @@ def test_set_defaults_and_generation_with_a_guide(tmp_path, capsys):
     from export.defaults import edit_card
 
     def older(card):
-        card["guide"] = {"model": "twin", "weight": 1, "sha256": file_sha256(
-            tmp_path / "twin.onnx")}
+        card["pipeline"][0] = {"step": "guide", "model": "twin", "weight": 1,
+                               "sha256": file_sha256(tmp_path / "twin.onnx")}
     edit_card(path, older)
-    assert diffsampler_rt.Model(path).guide().path == tmp_path / "twin.onnx"
+    assert diffsampler_rt.Model(path).guide(_guide(path)).path == tmp_path / "twin.onnx"
     assert export_main(["set-defaults", str(tmp_path / "twin.onnx"), "--steps", "12"]) == 0
     with pytest.raises(ModelFormatError, match="twin.onnx has sha256"):
         diffsampler_rt.Model(path).generate(64, 1, seed=0)
     shutil.copy(diffsampler_rt.load("ldbn").path, tmp_path / "twin.onnx")
-    assert export_main(["set-defaults", str(path), "--guide", "twin"]) == 0
+    assert pipeline("--add", "guide", "--replace", "guide", "--model", "twin",
+                    "--weight", "1") == 0
     with pytest.raises(ModelFormatError, match="has embedding 'stratified', the model 'ot'"):
         diffsampler_rt.Model(path).generate(64, 1, seed=0)
-    assert export_main(["set-defaults", str(path), "--guide", "none"]) == 0
-    assert "guide" not in diffsampler_rt.Model(path).card
+    assert pipeline("--remove", "guide") == 0
+    assert _guide(path) is None
 
 
 def test_every_bundled_model_finds_its_guide():
@@ -134,12 +206,13 @@ def test_every_bundled_model_finds_its_guide():
     (an edit of the guide's own card once orphaned sot: its card held the guide file's
     sha256), and shares the model's schedule and embedding."""
     guided_models = [name for name in diffsampler_rt.list_models()
-                     if "guide" in diffsampler_rt.load(name).card]
+                     if find(diffsampler_rt.load(name).card["pipeline"], "guide")]
     assert {"sot", "sot_32"} <= set(guided_models)
     for name in guided_models:
         model = diffsampler_rt.Model(diffsampler_rt.load(name).path)
-        assert "network_sha256" in model.card["guide"], name
-        assert model.guide().card["name"] == model.card["guide"]["model"]
+        spec = find(model.card["pipeline"], "guide")
+        assert "network_sha256" in spec, name
+        assert model.guide(spec).card["name"] == spec["model"]
 
 
 def test_bundled_guides_are_found_but_not_listed():
@@ -153,13 +226,15 @@ def test_bundled_guides_are_found_but_not_listed():
     assert not set(guides) & set(diffsampler_rt.list_models())
     with pytest.raises(UnknownModelError, match="sot_32_guide"):
         diffsampler_rt.load("sot_32_guide")
-    used = {diffsampler_rt.load(name).card.get("guide", {}).get("model")
+    used = {(find(diffsampler_rt.load(name).card["pipeline"], "guide") or {}).get("model")
             for name in diffsampler_rt.list_models()}
     assert set(guides) <= used
     model = diffsampler_rt.Model(diffsampler_rt.load("sot_32").path)
-    assert model.guide().path == MODELS_DIR / "guides" / "sot_32_guide.onnx"
-    assert diffsampler_rt.Model(diffsampler_rt.load("sot_32").path).guide() is model.guide()
+    spec = find(model.card["pipeline"], "guide")
+    assert model.guide(spec).path == MODELS_DIR / "guides" / "sot_32_guide.onnx"
+    assert diffsampler_rt.Model(diffsampler_rt.load("sot_32").path).guide(spec) is \
+        model.guide(spec)
     # the two networks take turns: neither session's idle workers spin
     spin = "session.intra_op.allow_spinning"
-    for session in (model.session, model.guide().session):
+    for session in (model.session, model.guide(spec).session):
         assert session.get_session_options().get_session_config_entry(spin) == "0"

@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, lattice
+from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.lattice import fit_rank1_lattice, nearest_rank1_lattice, rank1_lattice
 from trainer.samplers.lattice import maxmin_generator, p2_generator, shifted, korobov
 from trainer.stats import min_distance
@@ -100,12 +101,14 @@ def test_bad_input_is_refused():
 
 
 def test_card_structure_at_every_side(tiny_onnx, tmp_path):
-    from export.defaults import set_defaults
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
+    base = diffsampler_rt.Model(path).card["pipeline"]  # the export's: thinning only
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (25, 64)}
-    set_defaults(path, structure="rank1_lattice")
+    edit_pipeline(path, add="rank1_lattice", at=0)  # where the lattice models have it
     m = diffsampler_rt.Model(path)
+    assert m.card["pipeline"] == [{"step": "rank1_lattice"}, *base]
     for n in (25, 64):  # not only power-of-two sides
         out = m.generate(n, 3, seed=6)
         # the network's lattice under a random shift: same generator, same set up to a shift
@@ -119,44 +122,49 @@ def test_card_structure_at_every_side(tiny_onnx, tmp_path):
             np.concatenate(list(m.iter_sets(n, 3, batch=1, seed=6))), out)
         np.testing.assert_array_equal(m.generate(n, 3, seed=6, structure=False), plain[n])
     out_25 = m.generate(25, 3, seed=6)
-    with pytest.raises(ValueError, match="cannot guide the solver"):
-        set_defaults(path, structure_guidance=2)
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match="cannot steer towards 'rank1_lattice'"):
+        edit_pipeline(path, add="structure_guidance", params={"steps": 2})
+    assert path.read_bytes() == before  # left as it was
     # limited to listed grid sides: elsewhere the network's sets
-    card = set_defaults(path, structure_sides=[5])
-    assert card["structure_sides"] == [5]
+    card = edit_pipeline(path, update="rank1_lattice", params={"sides": [5]})
+    assert card["pipeline"] == [{"step": "rank1_lattice", "sides": [5]}, *base]
     m = diffsampler_rt.Model(path)
     np.testing.assert_array_equal(m.generate(25, 3, seed=6), out_25)
     np.testing.assert_array_equal(m.generate(64, 3, seed=6), plain[64])
-    assert "structure_sides" not in set_defaults(path, structure="none")
+    assert edit_pipeline(path, remove="rank1_lattice")["pipeline"] == base
 
 
-@pytest.mark.parametrize("extra, message", [
-    ({"structure_sides": [8]}, "'structure_sides' needs a structure"),
-    ({"structure": "rank1_lattice", "structure_sides": [16, 8]}, "increasing positive"),
-    ({"structure": "rank1_lattice", "structure_sides": 8}, "got 8"),
-    ({"structure": "rank1_lattice", "structure_sides": [0, 8]}, "got \\[0, 8\\]"),
+@pytest.mark.parametrize("pipeline, message", [
+    # sides belong to a structure step
+    ([{"step": "thin", "sides": [8]}], "step 'thin' has no parameter 'sides'"),
+    ([{"step": "rank1_lattice", "sides": [16, 8]}, {"step": "thin"}],
+     "'sides' must be a list of increasing grid sides >= 1, got [16, 8]"),
+    ([{"step": "rank1_lattice", "sides": 8}, {"step": "thin"}], "got 8"),
+    ([{"step": "rank1_lattice", "sides": [0, 8]}, {"step": "thin"}], "got [0, 8]"),
+    ([{"step": "rank1_lattice", "sides": [8, 8.5]}, {"step": "thin"}], "got [8, 8.5]"),
 ])
-def test_structure_sides_are_validated(extra, message):
-    from diffsampler_rt.card import CARD_KEY, parse_card
-    card = {k: v for k, v in diffsampler_rt.load("rank1").card.items()
-            if not k.startswith("structure")}
-    with pytest.raises(ModelFormatError, match=message):
-        parse_card({CARD_KEY: json.dumps({**card, **extra})}, "m")
+def test_structure_sides_are_validated(pipeline, message):
+    from .conftest import pipeline_card_error
+    text = pipeline_card_error("rank1", pipeline, message)
+    assert f"pipeline entry 0: step {pipeline[0]['step']!r}" in text
 
 
 def test_card_structure_needs_no_stratified_embedding():
     from diffsampler_rt.card import CARD_KEY, parse_card
     card = dict(diffsampler_rt.load("rank1").card)
-    assert card["embedding"] == "ot" and card["structure"] == "rank1_lattice"
+    assert card["embedding"] == "ot" and find(card["pipeline"], "rank1_lattice") is not None
     parse_card({CARD_KEY: json.dumps(card)}, "m")
-    with pytest.raises(ModelFormatError, match="cannot guide the solver"):
-        parse_card({CARD_KEY: json.dumps({**card, "structure_guidance": 3})}, "m")
+    guided = {**card, "pipeline": [*card["pipeline"], {"step": "structure_guidance", "steps": 3}]}
+    with pytest.raises(ModelFormatError, match="cannot steer towards 'rank1_lattice'"):
+        parse_card({CARD_KEY: json.dumps(guided)}, "m")
 
 
 @pytest.mark.parametrize("name, choose", [("rank1", maxmin_generator), ("lattice", p2_generator)])
 def test_bundled_models_give_the_reference_lattice_at_trained_sizes(name, choose):
     # measured: every set at n = 64, 256 and 1024 (benchmarks/results/fidelity.md)
-    assert diffsampler_rt.load(name).card["structure_sides"][:2] == [8, 16]
+    assert find(diffsampler_rt.load(name).card["pipeline"], "rank1_lattice")["sides"][:2] == \
+        [8, 16]
     for n in (64, 256):
         sets = diffsampler_rt.generate(name, n, 2, seed=0)
         gen, _, fit = fit_rank1_lattice(sets)
@@ -167,16 +175,24 @@ def test_docstring_examples():
     assert doctest.testmod(lattice).failed == 0
 
 
-def test_set_defaults_cli_lattice_structure(tiny_onnx, tmp_path, capsys):
+def test_pipeline_cli_lattice_structure(tiny_onnx, tmp_path, capsys):
     from export.__main__ import main
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    assert main(["set-defaults", str(path), "--structure", "rank1_lattice",
-                 "--structure-sides", "8,16,24"]) == 0
-    assert "structure rank1_lattice (k in 8, 16, 24)" in capsys.readouterr().out
-    assert diffsampler_rt.Model(path).card["structure_sides"] == [8, 16, 24]
-    assert main(["set-defaults", str(path), "--structure-sides", "8,x"]) == 2
-    assert "--structure-sides must be grid sides separated by commas, got '8,x'" \
-        in capsys.readouterr().err
-    assert main(["set-defaults", str(path), "--structure-sides", "16,8"]) == 2
-    assert "must be a list of increasing positive integers" in capsys.readouterr().err
+    base = diffsampler_rt.Model(path).card["pipeline"]  # the export's: thinning only
+    assert main(["pipeline", str(path), "--add", "rank1_lattice", "--at", "0",
+                 "--sides", "[8,16,24]"]) == 0
+    assert capsys.readouterr().out.startswith(
+        "0. rank1_lattice: nearest rank-1 lattice at k in [8, 16, 24], and of n points where "
+        "n is not a square\n1. thin: ")
+    assert diffsampler_rt.Model(path).card["pipeline"] == [
+        {"step": "rank1_lattice", "sides": [8, 16, 24]}, *base]
+    before = path.read_bytes()
+    for sides, message in (("8,x", "'sides' must be a list of increasing grid sides >= 1, "
+                                    "got '8,x'"),
+                           ("[16,8]", "'sides' must be a list of increasing grid sides >= 1, "
+                                      "got [16, 8]")):
+        assert main(["pipeline", str(path), "--update", "rank1_lattice", "--sides", sides]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and message in err, err
+        assert path.read_bytes() == before  # left as it was

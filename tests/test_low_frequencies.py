@@ -1,4 +1,5 @@
 """Smooth moves that set a point set's large scales (diffsampler_rt.low_frequencies)."""
+import copy
 import doctest
 import json
 
@@ -7,6 +8,7 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, low_frequencies
+from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.low_frequencies import even_out, gain_at, settings_problem
 from tests.test_elimination import low_power
 
@@ -55,17 +57,45 @@ def test_card_cut_per_size():
         assert match in settings_problem(bad)
 
 
+def _refused(path, argv, capsys, *texts):
+    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
+    text, and leaves the file as it was."""
+    from export.__main__ import main as export_main
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert export_main(["pipeline", str(path), *argv]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith("error: ") and err.count("\n") == 1 and not out
+    for text in texts:
+        assert text in err, (text, err)
+    assert path.read_bytes() == before
+
+
+def _entry(path, step: str) -> dict:
+    return find(diffsampler_rt.load(path).card["pipeline"], step)
+
+
+def _with_entry(card: dict, step: str, **change) -> dict:
+    """``card`` (a copy) with its ``step`` entry changed."""
+    card = copy.deepcopy(card)
+    next(e for e in card["pipeline"] if e["step"] == step).update(change)
+    return card
+
+
 def test_card_even_out_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
     from export.__main__ import main as export_main
     src = diffsampler_rt.model.resolve("gbn_fast")
     path = bundled_copy("gbn_fast")
-    assert export_main(["set-defaults", str(path), "--even-out", "none"]) == 0
+    assert export_main(["pipeline", str(path), "--remove", "even_out"]) == 0
+    assert _entry(path, "even_out") is None
     plain = diffsampler_rt.generate(path, 256, 2, seed=4)
-    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
-                        "--even-out-cut", "0.5"]) == 0
-    assert "even out gain 0.3 below 0.5 sqrt(n)" in capsys.readouterr().out
+    capsys.readouterr()
+    assert export_main(["pipeline", str(path), "--add", "even_out", "--at", "1", "--gain", "0.3",
+                        "--cut", "0.5"]) == 0
+    assert ("1. even_out: large scales evened, gain 0.3 below 0.5 sqrt(n)"
+            in capsys.readouterr().out)
     card = diffsampler_rt.load(path).card
-    assert card["even_out"] == {"cut": 0.5, "gain": 0.3}
+    assert card["pipeline"][1] == {"step": "even_out", "cut": 0.5, "gain": 0.3}
     evened = diffsampler_rt.generate(path, 256, 2, seed=4)
     assert not np.array_equal(evened, plain)
     assert np.mean([low_power(p, 0.5) for p in evened]) < np.mean([low_power(p, 0.5)
@@ -73,43 +103,43 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(bundled_copy, cap
     # structure=False leaves it out
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
                                   diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
-    assert export_main(["set-defaults", str(path), "--even-out-cut", "0.5"]) == 2
-    # a cut per size, at the gain table's sizes: the model uses the cut at its n
-    assert export_main(["set-defaults", str(path), "--even-out", "64:0,1024:0.3",
-                        "--even-out-cut", "64:1,1024:0.5"]) == 0
-    assert diffsampler_rt.load(path).card["even_out"] == {"cut": [1.0, 0.5], "n": [64, 1024],
-                                                          "gain": [0.0, 0.3]}
+    _refused(path, ["--add", "even_out", "--cut", "0.5"], capsys, "step 'even_out' needs 'gain'")
+    # a cut per size: the model uses the cut at its n
+    assert export_main(["pipeline", str(path), "--update", "even_out", "--gain", "64:0,1024:0.3",
+                        "--cut", "64:1,1024:0.5"]) == 0
+    assert _entry(path, "even_out") == {"cut": {"n": [64, 1024], "values": [1.0, 0.5]},
+                                        "gain": {"n": [64, 1024], "values": [0.0, 0.3]}}
     per_size = diffsampler_rt.generate(path, 1024, 1, seed=4)
-    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
-                        "--even-out-cut", "0.5"]) == 0
+    assert export_main(["pipeline", str(path), "--update", "even_out", "--gain", "0.3",
+                        "--cut", "0.5"]) == 0
     np.testing.assert_array_equal(per_size, diffsampler_rt.generate(path, 1024, 1, seed=4))
-    for cut in ("64:1,256:0.5", "0.5:x"):
-        assert export_main(["set-defaults", str(path), "--even-out", "64:0,1024:0.3",
-                            "--even-out-cut", cut]) == 2
-    assert export_main(["set-defaults", str(path), "--even-out", "0.3",
-                        "--even-out-cut", "64:1,1024:0.5"]) == 2
-    assert "--even-out-cut N:C pairs need --even-out N:G pairs" in capsys.readouterr().err
-    assert export_main(["set-defaults", str(path), "--even-out", "2"]) == 2
-    assert "gain must be" in capsys.readouterr().err
+    _refused(path, ["--update", "even_out", "--cut", "0.5:x"], capsys,
+             "step 'even_out': 'cut' must be", "0.5:x")
+    _refused(path, ["--update", "even_out", "--cut", "64:1,1024:3"], capsys,
+             "step 'even_out': 'cut' values must each be a number in (0, 2], got 3")
+    _refused(path, ["--update", "even_out", "--gain", "2"], capsys,
+             "step 'even_out': 'gain' must be a number in [-0.9, 0.9]")
+    assert _entry(path, "even_out") == {"cut": 0.5, "gain": 0.3}  # left as it was
     from diffsampler_rt.card import CARD_KEY, parse_card
-    bad = {**card, "even_out": {"cut": 1.0, "gain": "x"}}
-    with pytest.raises(ModelFormatError, match="model card field 'even_out' gain must be"):
+    bad = _with_entry(card, "even_out", gain="x")
+    with pytest.raises(ModelFormatError, match="pipeline entry 1: step 'even_out': 'gain' must be"):
         parse_card({CARD_KEY: json.dumps(bad)}, "m.onnx")
 
 
 def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
     from export.__main__ import main as export_main
-    src = diffsampler_rt.model.resolve("gbn_fast")
     path = bundled_copy("gbn_fast")
-    assert export_main(["set-defaults", str(path), "--restore-cut", "none"]) == 0
-    assert "restore cut 0.25 sqrt(n)" in capsys.readouterr().out
-    assert "restore_cut" not in diffsampler_rt.load(path).card
+    capsys.readouterr()
+    assert export_main(["pipeline", str(path), "--update", "thin", "--restore-cut", "none"]) == 0
+    assert ("thin: thinned to n (crowded points first), large scales restored below 0.25 "
+            "sqrt(n)") in capsys.readouterr().out
+    assert "restore_cut" not in _entry(path, "thin")
     plain = diffsampler_rt.generate(path, 200, 4, seed=3)
     square = diffsampler_rt.generate(path, 256, 1, seed=3)
     unstructured = diffsampler_rt.generate(path, 200, 2, seed=3, structure=False)
-    assert export_main(["set-defaults", str(path), "--restore-cut", "1"]) == 0
-    assert "restore cut 1 sqrt(n)" in capsys.readouterr().out
-    assert diffsampler_rt.load(path).card["restore_cut"] == 1.0
+    assert export_main(["pipeline", str(path), "--update", "thin", "--restore-cut", "1"]) == 0
+    assert "large scales restored below 1 sqrt(n)" in capsys.readouterr().out
+    assert _entry(path, "thin")["restore_cut"] == 1.0
     restored = diffsampler_rt.generate(path, 200, 4, seed=3)
     assert restored.shape == (4, 200, 2) and ((restored >= 0) & (restored < 1)).all()
     assert not np.array_equal(restored, plain)
@@ -121,14 +151,16 @@ def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(bundled_copy, 
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 200, 2, seed=3, structure=False),
                                   unstructured)
     for bad in ("0", "2.5", "nan", "x"):
-        assert export_main(["set-defaults", str(path), "--restore-cut", bad]) == 2
-        assert bad in capsys.readouterr().err
-    assert diffsampler_rt.load(path).card["restore_cut"] == 1.0  # left as it was
+        _refused(path, ["--update", "thin", "--restore-cut", bad], capsys,
+                 "step 'thin': 'restore_cut' must be a number in (0, 2]", bad)
+    assert _entry(path, "thin")["restore_cut"] == 1.0  # left as it was
     from diffsampler_rt.card import CARD_KEY, parse_card
     card = diffsampler_rt.load(path).card
     for bad in (True, "1", 0, -1.0, 3.0):
-        with pytest.raises(ModelFormatError, match="'restore_cut' must be a number in"):
-            parse_card({CARD_KEY: json.dumps({**card, "restore_cut": bad})}, "m.onnx")
+        with pytest.raises(ModelFormatError,
+                           match="step 'thin': 'restore_cut' must be a number in"):
+            parse_card({CARD_KEY: json.dumps(_with_entry(card, "thin", restore_cut=bad))},
+                       "m.onnx")
 
 
 def test_docstring_examples():

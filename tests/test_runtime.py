@@ -175,13 +175,17 @@ def test_circular_padding_makes_toroidal_sets(tiny_onnx, tmp_path):
     torus = generate(tmp_path / "circular.onnx", 64, 4, seed=3)
     assert torus.shape == plain.shape and np.all((torus >= 0) & (torus < 1))
     np.testing.assert_array_equal(torus, generate(tmp_path / "circular.onnx", 64, 4, seed=3))
-    # the same sets on the torus, each shifted by its own random vector (points the plain
-    # decoding clipped to the square's edge aside)
-    inside = (plain > 0) & (plain < np.nextafter(1.0, 0.0))
+    # the untrained net's offsets leave their cells: decoding reflects them back into the
+    # cell (one point a cell), clamping none onto a cell's edge or the square's
+    from diffsampler_rt.grid import strip_bounds
+    cells = np.stack(np.meshgrid(np.arange(8), np.arange(8)), -1).reshape(-1, 2)
+    assert np.array_equal(np.floor(plain * 8), np.broadcast_to(cells, plain.shape))
+    assert not np.isin(plain, np.concatenate(strip_bounds(8))).any()
+    # the same sets on the torus, each shifted by its own random vector (every point)
     for s in range(4):
-        d = np.mod(torus[s] - plain[s], 1.0)[inside[s].all(axis=1)]
+        d = np.mod(torus[s] - plain[s], 1.0)
         spread = np.abs(((d - d[0] + 0.5) % 1.0) - 0.5).max()
-        assert spread < 1e-9 and len(d) > 32
+        assert spread < 1e-9 and len(d) == 64
     assert len({tuple(np.round(np.mod(torus[s, 0] - plain[s, 0], 1.0), 6)) for s in range(4)}) == 4
     # the shift is part of the model, like a density: structure=False keeps it
     bare = generate(tmp_path / "circular.onnx", 64, 4, seed=3, structure=False)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import diffsampler_rt
-from diffsampler_rt import ModelFormatError, sliced_ot
+from diffsampler_rt import ModelFormatError, disk_transport, sliced_ot
 from diffsampler_rt.sliced_ot import (disk_to_square, iterations_at, polish, settings_problem,
                                       square_to_disk)
 
@@ -47,7 +47,7 @@ def test_polish_evens_out_white_noise_and_keeps_sets_apart():
                        workers=workers)
         np.testing.assert_array_equal(again, out)
     # a set alone: the threads share each iteration's blocks of directions, same bits
-    one = [polish(pts[:1], 4, 3 * sliced_ot.BLOCK + 5, [np.random.default_rng(5)],
+    one = [polish(pts[:1], 4, 3 * disk_transport.BLOCK + 5, [np.random.default_rng(5)],
                   workers=w) for w in (1, 2, 3, None)]
     for other in one[1:]:
         np.testing.assert_array_equal(other, one[0])
@@ -65,7 +65,7 @@ def test_the_sampler_uses_the_same_update():
     y = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
     base = np.arange(8) * (np.pi / 8)
     for _ in range(3):
-        y = sliced_ot.sliced_step(y, base + rng.random() * (np.pi / 8))
+        y = disk_transport.sliced_step(y, base + rng.random() * (np.pi / 8))
     np.testing.assert_array_equal(x, y)
 
 
@@ -90,23 +90,68 @@ def test_iterations_per_size():
     ({"directions": 64, "iterations": 4, "step": 2.5}, "got 2.5"),
     ({"directions": 64, "iterations": 4, "step": True}, "got True"),
 ])
-def test_card_settings_are_validated(spec, message):
+def test_format_1_settings_are_validated(spec, message):
     from diffsampler_rt.card import CARD_KEY, parse_card
     assert message in settings_problem(spec)
+    # a format-2 card carrying the old field is refused whatever its value
     card = {**diffsampler_rt.load("rank1").card, "sliced_ot": spec}
-    with pytest.raises(ModelFormatError, match="model card field 'sliced_ot'"):
+    with pytest.raises(ModelFormatError, match="model card field 'sliced_ot' belongs to format 1"):
         parse_card({CARD_KEY: json.dumps(card)}, "m")
 
 
-def test_card_polish_is_applied(tiny_onnx, tmp_path):
+@pytest.mark.parametrize("params, message, got", [
+    ({"iterations": 4}, "step 'sliced_ot' needs 'directions'", None),
+    ({"directions": 64, "iterations": 4, "extra": 1},
+     "step 'sliced_ot' has no parameter 'extra'", None),
+    ({"directions": 0, "iterations": 4}, "'directions' must be an integer in [1, 1024]", 0),
+    ({"directions": 64, "iterations": -1}, "'iterations' must be an integer in [0, inf]", -1),
+    ({"directions": 64, "iterations": True}, "'iterations' must be an integer", True),
+    ({"directions": 64, "iterations": {"n": [1024, 256], "values": [1, 2]}},
+     "'iterations' table must be {\"n\": [increasing sizes]", {"n": [1024, 256], "values": [1, 2]}),
+    ({"directions": 64, "iterations": {"n": [256], "values": [1, 2]}},
+     "'iterations' table must be", {"n": [256], "values": [1, 2]}),
+    ({"directions": 64, "iterations": {"n": [64, 256], "values": [1, 2.5]}},
+     "'iterations' values must each be an integer", 2.5),
+    ({"directions": 64, "iterations": 4, "step_size": 0},
+     "'step_size' must be a number in (0, 2]", 0),
+    ({"directions": 64, "iterations": 4, "step_size": 2.5}, "'step_size' must be a number", 2.5),
+    ({"directions": 64, "iterations": 4, "step_size": True}, "'step_size' must be a number", True),
+])
+def test_pipeline_entries_are_validated(params, message, got):
+    from .conftest import pipeline_card_error
+    entry = {"step": "sliced_ot", **params}
+    text = pipeline_card_error("rank1", [{"step": "thin"}, entry], message)
+    assert text.startswith("m: pipeline entry 1: step 'sliced_ot'")
+    if got is not None:
+        assert text.endswith(f"got {got!r}")
+
+
+def _pipeline(path, *args) -> int:
     from export.__main__ import main as export_main
+    return export_main(["pipeline", str(path), *args])
+
+
+def _refused(path, capsys, args, message) -> None:
+    """``python -m export pipeline`` exits 2 with a one-line error naming the problem and
+    leaves the file as it was."""
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert _pipeline(path, *args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert path.read_bytes() == before
+
+
+def test_card_polish_is_applied(tiny_onnx, tmp_path, capsys):
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
+    base = diffsampler_rt.Model(path).card["pipeline"]  # the export's: thinning only
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=2) for n in (64, 256)}
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "64:0,256:4",
-                        "--sliced-ot-directions", "16"]) == 0
+    assert _pipeline(path, "--add", "sliced_ot", "--iterations", "64:0,256:4",
+                     "--directions", "16") == 0
     m = diffsampler_rt.Model(path)
-    assert m.card["sliced_ot"] == {"directions": 16, "n": [64, 256], "iterations": [0, 4]}
+    assert m.card["pipeline"] == [*base, {"step": "sliced_ot", "directions": 16,
+                                          "iterations": {"n": [64, 256], "values": [0, 4]}}]
     # a polishing model's session does not spin after a run (the polish wants the cores)
     spin = "session.intra_op.allow_spinning"
     assert m.session.get_session_options().get_session_config_entry(spin) == "0"
@@ -118,12 +163,19 @@ def test_card_polish_is_applied(tiny_onnx, tmp_path):
     np.testing.assert_array_equal(m.generate(256, 3, seed=2, structure=False), plain[256])
     np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=2))),
                                   polished)
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "1.5"]) == 2
-    assert export_main(["set-defaults", str(path), "--sliced-ot-directions", "8"]) == 2
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "3"]) == 0  # keeps the 16
-    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 16, "iterations": 3}
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "none"]) == 0
-    assert "sliced_ot" not in diffsampler_rt.Model(path).card
+    _refused(path, capsys, ["--update", "sliced_ot", "--iterations", "1.5"],
+             "'iterations' must be an integer in [0, inf]")
+    _refused(path, capsys, ["--update", "sliced_ot", "--directions", "2000"],
+             "'directions' must be an integer in [1, 1024], got 2000")
+    _refused(path, capsys, ["--add", "sliced_ot", "--directions", "8"],
+             "step 'sliced_ot' needs 'iterations'")
+    assert _pipeline(path, "--update", "sliced_ot", "--iterations", "3") == 0  # keeps the 16
+    assert diffsampler_rt.Model(path).card["pipeline"] == [
+        *base, {"step": "sliced_ot", "directions": 16, "iterations": 3}]
+    assert _pipeline(path, "--remove", "sliced_ot") == 0
+    assert diffsampler_rt.Model(path).card["pipeline"] == base
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(256, 3, seed=2),
+                                  plain[256])
 
 
 def test_an_over_relaxed_step_evens_out_sets_in_fewer_iterations():
@@ -145,30 +197,34 @@ def test_an_over_relaxed_step_evens_out_sets_in_fewer_iterations():
 
 
 def test_card_polish_step(tiny_onnx, tmp_path, capsys):
-    from export.__main__ import main as export_main
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "4"]) == 0
+    base = diffsampler_rt.Model(path).card["pipeline"]  # the export's: thinning only
+    assert _pipeline(path, "--add", "sliced_ot", "--iterations", "4", "--directions", "64") == 0
     plain = diffsampler_rt.Model(path).generate(256, 2, seed=3)
     capsys.readouterr()
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
-                        "1.5"]) == 0
-    assert ("sliced OT 4 iterations of 64 directions, each move scaled by 1.5"
-            in capsys.readouterr().out)
+    assert _pipeline(path, "--update", "sliced_ot", "--step-size", "1.5") == 0
+    assert (capsys.readouterr().out.splitlines()[-1]
+            == f"{len(base)}. sliced_ot: 4 sliced-OT iterations of 64 directions, "
+               "each move x 1.5")
     m = diffsampler_rt.Model(path)
-    assert m.card["sliced_ot"] == {"directions": 64, "iterations": 4, "step": 1.5}
+    assert m.card["pipeline"] == [*base, {"step": "sliced_ot", "directions": 64,
+                                          "iterations": 4, "step_size": 1.5}]
     relaxed = m.generate(256, 2, seed=3)
     np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False),
                                   diffsampler_rt.Model(tiny_onnx).generate(256, 2, seed=3))
     assert not np.allclose(relaxed, plain) and np.all((relaxed >= 0) & (relaxed < 1))
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "5"]) == 0  # step kept
-    assert diffsampler_rt.Model(path).card["sliced_ot"] == {"directions": 64, "iterations": 5,
-                                                            "step": 1.5}
-    assert export_main(["set-defaults", str(path), "--sliced-ot-step", "1.5"]) == 2
-    assert "--sliced-ot-step needs --sliced-ot" in capsys.readouterr().err
-    assert export_main(["set-defaults", str(path), "--sliced-ot", "4", "--sliced-ot-step",
-                        "3"]) == 2
-    assert "step must be a number in (0, 2], got 3.0" in capsys.readouterr().err
+    assert _pipeline(path, "--update", "sliced_ot", "--iterations", "5") == 0  # step kept
+    assert diffsampler_rt.Model(path).card["pipeline"] == [
+        *base, {"step": "sliced_ot", "directions": 64, "iterations": 5, "step_size": 1.5}]
+    _refused(path, capsys, ["--step-size", "1.5"], "parameters need --add, --update or --replace")
+    _refused(path, capsys, ["--update", "sliced_ot", "--step-size", "3"],
+             "step 'sliced_ot': 'step_size' must be a number in (0, 2], got 3")
+    _refused(path, capsys, ["--update", "sliced_ot", "--step-size", "true"],
+             "'step_size' must be a number in (0, 2], got True")
+    assert _pipeline(path, "--update", "sliced_ot", "--step-size", "none") == 0  # back to 1
+    assert diffsampler_rt.Model(path).card["pipeline"] == [
+        *base, {"step": "sliced_ot", "directions": 64, "iterations": 5}]
 
 
 def test_docstring_examples():
@@ -181,7 +237,7 @@ def test_sliced_step_matches_the_plain_update():
     x = square_to_disk(rng.random((3, 50, 2)))
     theta = rng.random((3, 7)) * np.pi
     want = x.copy()
-    t = sliced_ot.disk_quantiles(50)
+    t = disk_transport.disk_quantiles(50)
     for c in range(3):
         move = np.zeros((50, 2))
         for a in theta[c]:
@@ -190,8 +246,8 @@ def test_sliced_step_matches_the_plain_update():
             rank = np.argsort(np.argsort(proj))
             move += np.outer(t[rank] - proj, d)
         want[c] += move / len(theta[c])
-    np.testing.assert_allclose(sliced_ot.sliced_step(x, theta), want, atol=1e-13)
-    shared = sliced_ot.sliced_step(x, theta[0])  # (m,) angles: the same for every set
+    np.testing.assert_allclose(disk_transport.sliced_step(x, theta), want, atol=1e-13)
+    shared = disk_transport.sliced_step(x, theta[0])  # (m,) angles: the same for every set
     np.testing.assert_allclose(shared[0], want[0], atol=1e-13)
 
 
@@ -200,9 +256,9 @@ def test_the_polish_sorts_by_16_bit_keys_close_to_the_exact_step():
     for n in (256, 1024, 4096):
         x = square_to_disk(rng.random((4, n, 2)))
         for _ in range(3):
-            x = sliced_ot.sliced_step(x, np.arange(64) * np.pi / 64 + rng.random() * np.pi / 64)
+            x = disk_transport.sliced_step(x, np.arange(64) * np.pi / 64 + rng.random() * np.pi / 64)
         theta = np.arange(64) * np.pi / 64 + 0.01
-        exact, keyed = sliced_ot.sliced_step(x, theta), sliced_ot.sliced_step(x, theta, exact=False)
+        exact, keyed = disk_transport.sliced_step(x, theta), disk_transport.sliced_step(x, theta, exact=False)
         assert not np.array_equal(exact, keyed)  # some near-ties swap
         spacing = np.sqrt(np.pi / n)  # mean point spacing in the disk
         assert np.abs(exact - keyed).max() < 0.02 * spacing
@@ -218,11 +274,11 @@ def test_the_packed_sort_gives_the_radix_sorts_step_bit_for_bit(monkeypatch):
         x = square_to_disk(rng.random((5, n, 2)))
         x[:, n // 2:] = x[:, :n - n // 2]  # duplicate points: tied keys keep index order
         cases.append((x, rng.random((5, 40)) * np.pi))
-    packed = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
-    monkeypatch.setattr(sliced_ot, "CHUNK", 1)  # one set a chunk
-    chunked = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
-    monkeypatch.setattr(sliced_ot, "PACKED_MAX_N", 0)
-    radix = [sliced_ot._displacement(x, t, exact=False) for x, t in cases]
+    packed = [disk_transport._displacement(x, t, exact=False) for x, t in cases]
+    monkeypatch.setattr(disk_transport, "CHUNK", 1)  # one set a chunk
+    chunked = [disk_transport._displacement(x, t, exact=False) for x, t in cases]
+    monkeypatch.setattr(disk_transport, "PACKED_MAX_N", 0)
+    radix = [disk_transport._displacement(x, t, exact=False) for x, t in cases]
     for a, b, c in zip(packed, chunked, radix):
         assert a.dtype == np.float64 and np.all(np.isfinite(a))
         np.testing.assert_array_equal(a, c)
@@ -238,7 +294,7 @@ def test_the_fast_step_keeps_no_buffers_once_it_returns():
     calls = [lambda: polish(pts, 2, 32, [np.random.default_rng(i) for i in range(4)], workers=1),
              lambda: polish(pts, 2, 32, [np.random.default_rng(i) for i in range(4)], workers=2),
              lambda: polish(pts[:1], 2, 64, [np.random.default_rng(0)], workers=2),
-             lambda: sliced_ot.sliced_step(x, theta, exact=False)]
+             lambda: disk_transport.sliced_step(x, theta, exact=False)]
     for call in calls:
         call()  # numpy's and the pools' own first-use allocations
         tracemalloc.start()

@@ -1,5 +1,6 @@
 """Owen-scrambled Sobol' nets imposed on k x k sets, and their sequence order
-(diffsampler_rt.sobol_orbit; card field "structure_prefix")."""
+(diffsampler_rt.sobol_orbit; the card pipeline's dyadic_net "prefix")."""
+import copy
 import doctest
 import shutil
 
@@ -7,12 +8,12 @@ import numpy as np
 import pytest
 
 import diffsampler_rt
-from diffsampler_rt import ModelFormatError, sobol_orbit
+from diffsampler_rt import sobol_orbit
+from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.sobol_orbit import _canonical, first_points, impose_sobol_orbit
 from trainer.samplers.sobol_owen import sobol_digits
 from trainer.stats import empty_elementary_fraction
 
-from .conftest import changed_card_error
 from .test_structure import jittered
 
 
@@ -77,13 +78,14 @@ def test_bad_arguments_are_refused(call, message):
 
 
 def test_card_prefix_makes_sequence_prefixes_at_other_sizes(tiny_onnx, tmp_path):
-    from export.defaults import set_defaults
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    set_defaults(path, structure="dyadic_net")
+    base = diffsampler_rt.Model(path).card["pipeline"]  # the export's: thinning only
+    edit_pipeline(path, add="dyadic_net", at=0)  # where the sobol_owen models have it
     plain = diffsampler_rt.Model(path)
-    card = set_defaults(path, structure_prefix=True)
-    assert card["structure_prefix"] is True
+    card = edit_pipeline(path, update="dyadic_net", params={"prefix": True})
+    assert card["pipeline"] == [{"step": "dyadic_net", "prefix": True}, *base]
     m = diffsampler_rt.Model(path)
     # at n = 4^h nothing changes: the dyadic_net imposition
     np.testing.assert_array_equal(m.generate(64, 2, seed=4), plain.generate(64, 2, seed=4))
@@ -97,23 +99,29 @@ def test_card_prefix_makes_sequence_prefixes_at_other_sizes(tiny_onnx, tmp_path)
     # without the structure: the network's own thinned set, as before
     np.testing.assert_array_equal(m.generate(40, 2, seed=4, structure=False),
                                   plain.generate(40, 2, seed=4, structure=False))
-    assert "structure_prefix" not in set_defaults(path, structure_prefix=False)
+    card = edit_pipeline(path, update="dyadic_net", params={"prefix": None})
+    assert "prefix" not in card["pipeline"][0]
     np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(40, 2, seed=4),
                                   plain.generate(40, 2, seed=4))
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"structure_prefix": "yes"}, "must be true or false, got 'yes'"),
-    ({"structure": "n_rooks", "structure_prefix": True}, "needs the structure 'dyadic_net'"),
-    ({"structure": None, "structure_prefix": True}, "'structure_prefix' needs a structure"),
+    ({"prefix": "yes"}, "step 'dyadic_net': 'prefix' must be true or false, got 'yes'"),
+    # a prefix is dyadic_net's alone: another structure, or no structure step at all
+    ({"step": "n_rooks", "prefix": True}, "step 'n_rooks' has no parameter 'prefix'"),
+    ({"step": "thin", "prefix": True}, "step 'thin' has no parameter 'prefix'"),
 ])
 def test_card_prefix_is_validated(change, message):
-    assert message in changed_card_error("sobol_owen", change, "structure_prefix")
+    from .conftest import pipeline_card_error
+    pipe = copy.deepcopy(diffsampler_rt.load("sobol_owen").card["pipeline"])
+    i = next(i for i, e in enumerate(pipe) if e["step"] == "dyadic_net")
+    pipe[i].update(change)
+    assert f"pipeline entry {i}: " in pipeline_card_error("sobol_owen", pipe, message)
 
 
 def test_bundled_sobol_models_make_sequence_prefixes():
     for name in ("sobol_owen", "sobol_owen_fast"):
-        assert diffsampler_rt.load(name).card["structure_prefix"] is True
+        assert find(diffsampler_rt.load(name).card["pipeline"], "dyadic_net")["prefix"] is True
     sets = diffsampler_rt.load("sobol_owen_fast").generate(576, 2, seed=0)
     assert np.all(empty_elementary_fraction(sets[:, :512]) == 0)  # 512 + 64, as Sobol's
     assert np.all(empty_elementary_fraction(sets[:, 512:]) == 0)

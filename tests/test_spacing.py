@@ -1,6 +1,8 @@
 """The minimum spacing the runtime restores on decoded sets (diffsampler_rt.spacing)."""
+import copy
 import doctest
 import json
+import re
 import shutil
 
 import numpy as np
@@ -8,7 +10,9 @@ import pytest
 
 import diffsampler_rt
 from diffsampler_rt import ModelFormatError, spacing
-from diffsampler_rt.spacing import close_pairs, enforce_min_spacing, radius
+from diffsampler_rt import per_size
+from diffsampler_rt.finish.pipeline import find
+from diffsampler_rt.spacing import close_pairs, enforce_min_spacing
 from trainer.stats import min_distance, spacing_coefficient
 
 
@@ -105,78 +109,118 @@ def test_spacing_coefficient_mean():
     assert spacing_coefficient(pts, 0) < spacing_coefficient(pts, mean=True)
 
 
+def _card_radius(card: dict, n: int) -> float:
+    """The radius a card's (first) min_spacing entry asks for at n points."""
+    return per_size.value(find(card["pipeline"], "min_spacing")["c"], n) / np.sqrt(n)
+
+
 def test_card_spacing_is_applied_and_removable(tiny_onnx, tmp_path):
-    from export.defaults import set_defaults
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = diffsampler_rt.Model(path).generate(256, 3, seed=5)
     c = 0.5
-    card = set_defaults(path, min_spacing=c)
-    assert card["min_spacing"] == c
+    card = edit_pipeline(path, add="min_spacing", params={"c": c})
+    assert find(card["pipeline"], "min_spacing") == {"c": c}
     m = diffsampler_rt.Model(path)
+    assert _card_radius(m.card, 256) == c / 16
     spaced = m.generate(256, 3, seed=5)
     np.testing.assert_array_equal(spaced, enforce_min_spacing(plain, c / 16))
     assert np.all(min_distance(spaced) >= c / 16)
     np.testing.assert_array_equal(m.generate(256, 3, seed=5, structure=False), plain)
     blocks = np.concatenate(list(m.iter_sets(256, 3, batch=2, seed=5)))
     np.testing.assert_array_equal(blocks, spaced)
-    assert "min_spacing" not in set_defaults(path, min_spacing="none")
+    assert find(edit_pipeline(path, remove="min_spacing")["pipeline"], "min_spacing") is None
     np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(256, 3, seed=5), plain)
-    with pytest.raises(ValueError, match="min_spacing must be a number in"):
-        set_defaults(path, min_spacing=2.0)
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match=r"step 'min_spacing': 'c' must be a number in \(0, "):
+        edit_pipeline(path, add="min_spacing", params={"c": 2.0})
+    assert path.read_bytes() == before
 
 
 def test_card_spacing_is_validated():
     from diffsampler_rt.card import CARD_KEY, parse_card
-    card = dict(diffsampler_rt.load("rank1").card)
+    card = copy.deepcopy(diffsampler_rt.load("rank1").card)
+    at = len(card["pipeline"])
+
+    def with_spacing(c) -> str:
+        pipe = [*card["pipeline"], {"step": "min_spacing", "c": c}]
+        return json.dumps({**card, "pipeline": pipe})
+
     for bad in (0, -1, 1.5, "0.7", True):
-        with pytest.raises(ModelFormatError, match="min_spacing must be a number"):
-            parse_card({CARD_KEY: json.dumps({**card, "min_spacing": bad})}, "m")
-    for bad, why in (({"n": [64]}, "must be {"), ({"n": [64, 256], "c": [0.7]}, "equal"),
-                     ({"n": [64, 64], "c": [0.7, 0.6]}, "increasing"),
-                     ({"n": [64.0], "c": [0.7]}, "increasing positive integers"),
-                     ({"n": [64], "c": [2.0]}, "c must be numbers in")):
-        with pytest.raises(ModelFormatError, match=why):
-            parse_card({CARD_KEY: json.dumps({**card, "min_spacing": bad})}, "m")
-    table = {"n": [64, 1024], "c": [0.7, 0.6]}
-    assert parse_card({CARD_KEY: json.dumps({**card, "min_spacing": table})}, "m")["min_spacing"] \
-        == table
-    assert parse_card({CARD_KEY: json.dumps({**card, "min_spacing": 0.7})}, "m")["min_spacing"] == 0.7
+        with pytest.raises(ModelFormatError, match=re.escape(
+                f"pipeline entry {at}: step 'min_spacing': 'c' must be a number in (0, 1.07)")):
+            parse_card({CARD_KEY: with_spacing(bad)}, "m")
+    table_form = "'c' table must be {\"n\": [increasing sizes], \"values\": [one per size]}"
+    for bad, why in (({"n": [64]}, table_form), ({"n": [64, 256], "values": [0.7]}, table_form),
+                     ({"n": [64, 64], "values": [0.7, 0.6]}, table_form),
+                     ({"n": [64.0], "values": [0.7]}, table_form),
+                     ({"n": [64], "c": [0.7]}, table_form),  # format 1's key
+                     ({"n": [64], "values": [2.0]},
+                      "'c' values must each be a number in (0, 1.07), got 2.0")):
+        with pytest.raises(ModelFormatError, match=re.escape(f"step 'min_spacing': {why}")):
+            parse_card({CARD_KEY: with_spacing(bad)}, "m")
+    with pytest.raises(ModelFormatError, match="step 'min_spacing' needs 'c'"):
+        parse_card({CARD_KEY: json.dumps({**card, "pipeline": [{"step": "min_spacing"}]})}, "m")
+    table = {"n": [64, 1024], "values": [0.7, 0.6]}
+    assert parse_card({CARD_KEY: with_spacing(table)}, "m")["pipeline"][at] == \
+        {"step": "min_spacing", "c": table}
+    assert parse_card({CARD_KEY: with_spacing(0.7)}, "m")["pipeline"][at]["c"] == 0.7
+    with pytest.raises(ModelFormatError, match="field 'min_spacing' belongs to format 1"):
+        parse_card({CARD_KEY: json.dumps({**card, "min_spacing": 0.7})}, "m")
 
 
-def test_set_defaults_cli_min_spacing(tiny_onnx, tmp_path, capsys):
+def test_pipeline_cli_min_spacing(tiny_onnx, tmp_path, capsys):
     from export.__main__ import main
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    assert main(["set-defaults", str(path), "--min-spacing", "wide"]) == 2
-    assert "--min-spacing must be a number, N:C pairs separated by commas, or none, got 'wide'" \
-        in capsys.readouterr().err
-    assert main(["set-defaults", str(path), "--min-spacing", "64:0.7:1"]) == 2
-    assert main(["set-defaults", str(path), "--min-spacing", "0.6"]) == 0
-    assert "min spacing 0.6 / sqrt(n)" in capsys.readouterr().out
-    assert diffsampler_rt.Model(path).card["min_spacing"] == 0.6
-    assert main(["set-defaults", str(path), "--min-spacing", "64:0.7,1024:0.6"]) == 0
-    assert ("min spacing c / sqrt(n), c = 0.7 at n = 64, 0.6 at n = 1024 (log-linear)"
+
+    def refused(argv, text):
+        before = path.read_bytes()
+        capsys.readouterr()
+        assert main(["pipeline", str(path), *argv]) == 2
+        out, err = capsys.readouterr()
+        assert err.startswith("error: ") and err.count("\n") == 1 and not out
+        assert text in err, err
+        assert path.read_bytes() == before
+
+    refused(["--add", "min_spacing", "--c", "wide"],
+            "step 'min_spacing': 'c' must be a number in (0, 1.07) or a per-size table "
+            "{\"n\": [sizes], \"values\": [...]}, got 'wide'")
+    refused(["--add", "min_spacing", "--c", "64:0.7:1"], "got '64:0.7:1'")
+    assert main(["pipeline", str(path), "--add", "min_spacing", "--c", "0.6"]) == 0
+    assert ("1. min_spacing: pairs pushed to at least c / sqrt(n), c = 0.6\n"
             in capsys.readouterr().out)
-    assert diffsampler_rt.Model(path).card["min_spacing"] == {"n": [64, 1024], "c": [0.7, 0.6]}
-    assert main(["set-defaults", str(path), "--min-spacing", "1024:0.7,64:0.6"]) == 2
-    assert "n must be increasing positive integers" in capsys.readouterr().err
+    thin = {"step": "thin", "drop": "random"}  # the export's own step comes first
+    assert diffsampler_rt.Model(path).card["pipeline"] == [thin, {"step": "min_spacing", "c": 0.6}]
+    assert main(["pipeline", str(path), "--update", "min_spacing", "--c", "64:0.7,1024:0.6"]) == 0
+    assert ("1. min_spacing: pairs pushed to at least c / sqrt(n), c = 0.7 / 0.6 at n = 64 / "
+            "1024 (log-linear)" in capsys.readouterr().out)
+    assert diffsampler_rt.Model(path).card["pipeline"] == [
+        thin, {"step": "min_spacing", "c": {"n": [64, 1024], "values": [0.7, 0.6]}}]
+    refused(["--update", "min_spacing", "--c", "1024:0.7,64:0.6"],
+            "'c' table must be {\"n\": [increasing sizes]")
 
 
 def test_per_size_spacing_table(tiny_onnx, tmp_path):
     from diffsampler_rt.spacing import coefficient, radius
-    from export.defaults import set_defaults
-    table = {"n": [64, 1024], "c": [0.7, 0.6]}
-    # log-linear between the sizes, the end values beyond them
-    assert coefficient(table, 256) == pytest.approx(0.65)
-    assert coefficient(table, 16) == 0.7 and coefficient(table, 4096) == 0.6
-    assert radius({"min_spacing": table}, 256) == pytest.approx(0.65 / 16)
+    from export.pipeline_edit import edit_pipeline
+    # the format-1 helpers: log-linear between the sizes, the end values beyond them
+    old = {"n": [64, 1024], "c": [0.7, 0.6]}
+    assert coefficient(old, 256) == pytest.approx(0.65)
+    assert coefficient(old, 16) == 0.7 and coefficient(old, 4096) == 0.6
+    assert radius({"min_spacing": old}, 256) == pytest.approx(0.65 / 16)
+    # the pipeline's table: the same reading
+    table = {"n": [64, 1024], "values": [0.7, 0.6]}
+    assert per_size.value(table, 256) == pytest.approx(0.65)
+    assert per_size.value(table, 16) == 0.7 and per_size.value(table, 4096) == 0.6
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = diffsampler_rt.Model(path).generate(256, 2, seed=3)
-    set_defaults(path, min_spacing=table)
+    edit_pipeline(path, add="min_spacing", params={"c": table})
+    assert _card_radius(diffsampler_rt.Model(path).card, 256) == pytest.approx(0.65 / 16)
     np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(256, 2, seed=3),
-                                  enforce_min_spacing(plain, coefficient(table, 256) / 16))
+                                  enforce_min_spacing(plain, per_size.value(table, 256) / 16))
 
 
 def brute_pairs_torus(p: np.ndarray, r: float) -> set:
@@ -227,7 +271,7 @@ def test_toroidal_models_keep_their_spacing_on_the_torus():
     m = diffsampler_rt.load("poisson_disk_torus_fast")
     assert m.card["padding"] == "circular"
     pts = m.generate(1024, 4, seed=0)  # with spacing in the square, 3 of these 4 were closer
-    assert np.all(min_distance(pts, toroidal=True) >= radius(m.card, 1024))
+    assert np.all(min_distance(pts, toroidal=True) >= _card_radius(m.card, 1024))
 
 
 def test_docstring_examples():
@@ -238,7 +282,7 @@ def test_bundled_blue_noise_models_keep_their_card_spacing():
     for name in ("poisson_disk_fast", "sot_fast"):
         m = diffsampler_rt.load(name)
         pts = m.generate(1024, 2, seed=0)
-        r = radius(m.card, 1024)
+        r = _card_radius(m.card, 1024)
         assert np.all(min_distance(pts) >= r)
         assert np.any(min_distance(m.generate(1024, 2, seed=0, structure=False)) < r)
 

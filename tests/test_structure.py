@@ -1,18 +1,29 @@
 """The (0, m, 2)-net structure the runtime imposes on decoded sets (diffsampler_rt.structure)."""
 import doctest
-import json
 import shutil
 
 import numpy as np
 import pytest
 
 import diffsampler_rt
-from diffsampler_rt import ModelFormatError, structure
+from diffsampler_rt import structure
 from diffsampler_rt.structure import impose_dyadic_net, impose_n_rooks
 from trainer.stats import empty_elementary_fraction, t_value
 from trainer.stats.structure import stratified_projections
 
-from .conftest import changed_card_error
+from .conftest import changed_pipeline_error, pipeline_card_error
+
+
+def _export_pipeline(path, *args) -> int:
+    """``python -m export pipeline PATH ARGS...`` (the CLI's main): its exit status."""
+    from export.__main__ import main as export_main
+    return export_main(["pipeline", str(path), *map(str, args)])
+
+
+def _entry(path, step: str) -> dict | None:
+    """The parameters of the card's ``step`` entry in the model at ``path``, or None."""
+    from diffsampler_rt.finish.pipeline import find
+    return find(diffsampler_rt.Model(path).card["pipeline"], step)
 
 
 def jittered(k: int, count: int, seed: int = 0) -> np.ndarray:
@@ -57,12 +68,12 @@ def test_bad_sides_are_refused():
 
 
 def test_card_structure_is_applied_at_power_of_two_sides(tiny_onnx, tmp_path):
-    from export.defaults import set_defaults
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=5) for n in (64, 144)}
-    card = set_defaults(path, structure="dyadic_net")
-    assert card["structure"] == "dyadic_net"
+    card = edit_pipeline(path, add="dyadic_net", at=0)  # before the thinning
+    assert [e["step"] for e in card["pipeline"]] == ["dyadic_net", "thin"]
     m = diffsampler_rt.Model(path)
     net = m.generate(64, 3, seed=5)
     assert np.all(t_value(net) == 0) and not np.all(t_value(plain[64]) == 0)
@@ -71,20 +82,21 @@ def test_card_structure_is_applied_at_power_of_two_sides(tiny_onnx, tmp_path):
     blocks = np.concatenate(list(m.iter_sets(64, 3, batch=2, seed=5)))
     np.testing.assert_array_equal(blocks, net)
     np.testing.assert_array_equal(m.generate(144, 3, seed=5), plain[144])  # k = 12: no net
-    assert "structure" not in set_defaults(path, structure="none")
+    card = edit_pipeline(path, remove="dyadic_net")
+    assert [e["step"] for e in card["pipeline"]] == ["thin"]
     np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(64, 3, seed=5), plain[64])
-    with pytest.raises(ValueError, match="unknown structure 'lattice'"):
-        set_defaults(path, structure="lattice")
+    with pytest.raises(ValueError, match="unknown step 'lattice'"):
+        edit_pipeline(path, add="lattice", at=0)
 
 
 def test_card_structure_is_validated():
-    from diffsampler_rt.card import CARD_KEY, parse_card
-    strat = dict(diffsampler_rt.load("sobol_owen").card)
-    with pytest.raises(ModelFormatError, match="unknown structure 'grid'"):
-        parse_card({CARD_KEY: json.dumps({**strat, "structure": "grid"})}, "m")
-    ot = dict(diffsampler_rt.load("rank1").card)
-    with pytest.raises(ModelFormatError, match="needs the stratified embedding"):
-        parse_card({CARD_KEY: json.dumps({**ot, "structure": "dyadic_net"})}, "m")
+    def grid(pipe):
+        pipe[[e["step"] for e in pipe].index("dyadic_net")] = {"step": "grid"}
+
+    assert "unknown step 'grid'" in changed_pipeline_error("sobol_owen", grid, "unknown step")
+    assert diffsampler_rt.load("rank1").card["embedding"] == "ot"
+    pipeline_card_error("rank1", [{"step": "dyadic_net"}, {"step": "thin"}],
+                        "step 'dyadic_net' needs the stratified embedding")
 
 
 @pytest.mark.parametrize("k", [3, 8, 16])
@@ -165,84 +177,127 @@ def test_n_rooks_block_is_validated(k, block, message):
     impose_n_rooks(jittered(24, 1), 24, block=32)  # a block of k or more: plain n-rooks
 
 
-@pytest.mark.parametrize("card_change, message", [
-    ({"structure_block": 32, "structure": "dyadic_net", "structure_guidance": None},
-     "needs the structure 'n_rooks'"),
-    ({"structure_block": 24}, "got 24"),
-    ({"structure_block": 32.0}, "got 32.0"),
-    ({"structure_block": {"sides": [128, 64], "block": [64, 32]}}, "increasing"),
-    ({"structure_block": {"sides": [64], "block": [32, 64]}}, "got {"),
-    ({"structure_block": {"sides": [64], "blocks": [32]}}, "got {"),
-    ({"structure_block": 32, "structure": None, "structure_min_side": None,
-      "structure_guidance": None, "structure_temperature": None}, "needs a structure"),
+def _changed(step: str, **params):
+    """A pipeline edit: the ``step`` entry's parameters changed (None removes one)."""
+    def edit(pipe):
+        entry = next(e for e in pipe if e["step"] == step)
+        entry.update(params)
+        for key in [k for k, v in entry.items() if v is None]:
+            del entry[key]
+    return edit
+
+
+def _n_rooks_changed(**params):
+    return _changed("n_rooks", **params)
+
+
+def _n_rooks_replaced(entry: dict):
+    """A pipeline edit: the n_rooks entry replaced by ``entry``."""
+    def edit(pipe):
+        pipe[next(i for i, e in enumerate(pipe) if e["step"] == "n_rooks")] = entry
+    return edit
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_n_rooks_replaced({"step": "dyadic_net", "block": 32}),
+     "step 'dyadic_net' has no parameter 'block'"),
+    (_n_rooks_changed(block=24), "got 24"),
+    (_n_rooks_changed(block=32.0), "got 32.0"),
+    (_n_rooks_changed(block={"sides": [128, 64], "block": [64, 32]}), "increasing"),
+    (_n_rooks_changed(block={"sides": [64], "block": [32, 64]}), "got {"),
+    (_n_rooks_changed(block={"sides": [64], "blocks": [32]}), "got {"),
+    (_changed("thin", block=32), "step 'thin' has no parameter 'block'"),
 ])
-def test_card_structure_block_is_validated(card_change, message):
-    assert message in changed_card_error("ldbn_fast", card_change, "structure_block")
+def test_card_structure_block_is_validated(edit, message):
+    assert message in changed_pipeline_error("ldbn_fast", edit, "block")
+
+
+def _refused(path, capsys, args, *texts) -> None:
+    """``python -m export pipeline PATH ARGS`` exits 2 with one "error: ..." line holding
+    every text, and leaves the file as it was."""
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert _export_pipeline(path, *args) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), captured.err
+    assert all(text in err[0] for text in texts), (texts, err[0])
+    assert captured.out == ""
+    assert path.read_bytes() == before
 
 
 def test_card_structure_block_applies_in_the_solver_and_on_the_sets(tiny_onnx, tmp_path,
                                                                     capsys):
-    """set-defaults --structure-block writes it; at k = 32 the runtime's sets then have the
-    blocks of 16 and the guided steps project onto them too; --structure none removes it."""
-    from export.__main__ import main as export_main
+    """pipeline --update n_rooks --block writes it; at k = 32 the runtime's sets then have
+    the blocks of 16 and the guided steps project onto them too; --block none removes it."""
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    args = ["set-defaults", str(path), "--structure", "n_rooks", "--structure-min-side", "16"]
-    assert export_main(args) == 0
+    assert _export_pipeline(path, "--add", "n_rooks", "--min-side", "16", "--at", "0") == 0
     plain = diffsampler_rt.Model(path).generate(1024, 2, seed=4)
     assert not _block_strata(plain, 32, 16)
     capsys.readouterr()
-    assert export_main(["set-defaults", str(path), "--structure-block", "16"]) == 0
-    assert "blocks of 16 cells and up stratified" in capsys.readouterr().out
+    assert _export_pipeline(path, "--update", "n_rooks", "--block", "16") == 0
+    assert "0. n_rooks: n-rooks projections imposed at k >= 16, blocks of 16 cells and up" \
+        in capsys.readouterr().out
     m = diffsampler_rt.Model(path)
     out = m.generate(1024, 2, seed=4)
     assert _block_strata(out, 32, 16)
     np.testing.assert_array_equal(m.generate(256, 2, seed=4),  # k = 16: plain n-rooks
                                   diffsampler_rt.Model(path).generate(256, 2, seed=4))
-    assert export_main(["set-defaults", str(path), "--structure-guidance", "2"]) == 0
+    assert _export_pipeline(path, "--add", "structure_guidance", "--steps", "2", "--at",
+                            "0") == 0
     guided = diffsampler_rt.Model(path).generate(1024, 2, seed=4)
     assert _block_strata(guided, 32, 16) and not np.array_equal(guided, out)
-    assert export_main(["set-defaults", str(path), "--structure-block", "x"]) == 2
-    assert "--structure-block must be an integer, K:B pairs" in capsys.readouterr().err
+    _refused(path, capsys, ["--update", "n_rooks", "--block", "x"],
+             "step 'n_rooks': 'block' must be a power of two", "got 'x'")
     # per grid side: blocks of 16 at k = 32 only, plain n-rooks at the sides not listed
-    assert export_main(["set-defaults", str(path), "--structure-block", "32:16,64:32"]) == 0
+    assert _export_pipeline(path, "--update", "n_rooks", "--block",
+                            '{"sides": [32, 64], "block": [16, 32]}') == 0
     assert "blocks of 16 cells and up at k = 32, 32 cells and up at k = 64" in \
         capsys.readouterr().out
-    assert diffsampler_rt.Model(path).card["structure_block"] == {"sides": [32, 64],
-                                                                   "block": [16, 32]}
+    assert _entry(path, "n_rooks")["block"] == {"sides": [32, 64], "block": [16, 32]}
     np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(1024, 2, seed=4), guided)
-    assert export_main(["set-defaults", str(path), "--structure-block", "64:16"]) == 0
+    assert _export_pipeline(path, "--update", "n_rooks", "--block",
+                            '{"sides": [64], "block": [16]}') == 0
     assert not _block_strata(diffsampler_rt.Model(path).generate(1024, 2, seed=4), 32, 16)
-    assert export_main(["set-defaults", str(path), "--structure-block", "64:16:2"]) == 2
-    assert export_main(["set-defaults", str(path), "--structure-block", "12"]) == 2
-    assert export_main(["set-defaults", str(path), "--structure-block", "none"]) == 0
-    assert "structure_block" not in diffsampler_rt.Model(path).card
-    assert export_main(["set-defaults", str(path), "--structure-block", "16"]) == 0
-    assert export_main(["set-defaults", str(path), "--structure", "none"]) == 0
-    assert "structure_block" not in diffsampler_rt.Model(path).card
+    for bad in ("64:16:2", "12", "32:16,64:32"):  # a per-size table is not a block table
+        _refused(path, capsys, ["--update", "n_rooks", "--block", bad], "'block'")
+    assert _export_pipeline(path, "--update", "n_rooks", "--block", "none") == 0
+    assert "block" not in _entry(path, "n_rooks")
+    assert _export_pipeline(path, "--update", "n_rooks", "--block", "16") == 0
+    # the guidance needs the structure: it goes first, then the structure with its block
+    _refused(path, capsys, ["--remove", "n_rooks"], "'structure_guidance'",
+             "needs a structure step")
+    assert _export_pipeline(path, "--remove", "structure_guidance") == 0
+    assert _export_pipeline(path, "--remove", "n_rooks") == 0
+    assert [e["step"] for e in diffsampler_rt.Model(path).card["pipeline"]] == ["thin"]
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(1024, 2, seed=4),
+                                  diffsampler_rt.Model(tiny_onnx).generate(1024, 2, seed=4))
 
 
 def test_n_rooks_card_min_side_and_guidance(tiny_onnx, tmp_path):
-    from export.defaults import set_defaults
+    from diffsampler_rt.finish.pipeline import find
+    from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = {n: diffsampler_rt.Model(path).generate(n, 2, seed=4) for n in (64, 256)}
-    set_defaults(path, structure="n_rooks", structure_min_side=16)
+    edit_pipeline(path, add="n_rooks", at=0, params={"min_side": 16})
     m = diffsampler_rt.Model(path)
     np.testing.assert_array_equal(m.generate(64, 2, seed=4), plain[64])  # k = 8 < 16
     rooks = m.generate(256, 2, seed=4)
     np.testing.assert_array_equal(rooks, impose_n_rooks(plain[256], 16))
-    card = set_defaults(path, structure_guidance=3)
-    assert (card["structure"], card["structure_min_side"], card["structure_guidance"]) == \
-        ("n_rooks", 16, 3)
+    card = edit_pipeline(path, add="structure_guidance", at=0, params={"steps": 3})
+    assert (find(card["pipeline"], "n_rooks"), find(card["pipeline"], "structure_guidance")) \
+        == ({"min_side": 16}, {"steps": 3})
     m = diffsampler_rt.Model(path)
     guided = m.generate(256, 2, seed=4)
     assert stratified_projections(guided).all() and not np.array_equal(guided, rooks)
     np.testing.assert_array_equal(m.generate(256, 2, seed=4, structure=False), plain[256])
     np.testing.assert_array_equal(np.concatenate(list(m.iter_sets(256, 2, batch=1, seed=4))),
                                   guided)
-    card = set_defaults(path, structure="none")
-    assert not {"structure", "structure_min_side", "structure_guidance"} & set(card)
+    edit_pipeline(path, remove="structure_guidance")
+    card = edit_pipeline(path, remove="n_rooks")
+    assert [e["step"] for e in card["pipeline"]] == ["thin"]
 
 
 def _spaced(points: np.ndarray, k: int) -> np.ndarray:
@@ -256,43 +311,75 @@ def _evened(points: np.ndarray, k: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("setting, move", [
-    ({"min_spacing": 0.7}, _spaced),
-    ({"even_out": {"cut": 0.5, "gain": 0.6}}, _evened),
+    ({"step": "min_spacing", "c": 0.7}, _spaced),
+    ({"step": "even_out", "cut": 0.5, "gain": 0.6}, _evened),
 ])
 def test_moves_go_before_an_imposed_structure(tiny_onnx, tmp_path, setting, move):
     """The structure must hold exactly, so a card's spacing and evening move the decoded set
     before it (after it, the moves would take points out of their strips); where none is
-    imposed, after."""
-    from export.defaults import set_defaults
+    imposed, after: the pipeline lists the move before the structure where it holds, and
+    after the thinning where it does not."""
+    from export.defaults import edit_card
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
     plain = {n: diffsampler_rt.Model(path).generate(n, 3, seed=6) for n in (64, 256)}
-    set_defaults(path, structure="n_rooks", structure_min_side=16, **setting)
+
+    def moves_around_the_structure(card):
+        assert [e["step"] for e in card["pipeline"]] == ["thin"]
+        card["pipeline"] = [{**setting, "where": "structured"},
+                            {"step": "n_rooks", "min_side": 16}, *card["pipeline"],
+                            {**setting, "where": "unstructured"}]
+
+    edit_card(path, moves_around_the_structure)
     m = diffsampler_rt.Model(path)
     both = m.generate(256, 3, seed=6)
     # a move may cross a cell border; the structure puts the point back in a strip of its
     # own cell (so the checked impose_n_rooks would refuse the moved set)
-    np.testing.assert_array_equal(both, structure._impose(move(plain[256], 16), 16, "n_rooks"))
+    np.testing.assert_array_equal(both, structure.impose(move(plain[256], 16), 16, "n_rooks"))
     assert stratified_projections(both).all()
     cells = np.stack(np.meshgrid(np.arange(16), np.arange(16)), -1).reshape(-1, 2)
     assert np.array_equal(np.floor(both * 16), np.broadcast_to(cells, both.shape))
     np.testing.assert_array_equal(m.generate(64, 3, seed=6),  # k = 8 < 16: the move only
                                   move(plain[64], 8))
+    # after the structure, the move would break it
+    assert not stratified_projections(move(both, 16)).all()
 
 
-@pytest.mark.parametrize("extra, message", [
-    ({"structure_min_side": 16}, "'structure_min_side' needs a structure"),
-    ({"structure": "n_rooks", "structure_min_side": 0}, "must be an integer >= 1, got 0"),
-    ({"structure": "n_rooks", "structure_guidance": -1}, "must be an integer >= 0, got -1"),
-    ({"structure": "n_rooks", "structure_guidance": True}, "got True"),
-    ({"structure": "n_rooks", "structure_guidance": 2.5}, "got 2.5"),
+@pytest.mark.parametrize("name", ["ldbn", "ldbn_fast"])
+def test_bundled_cards_move_before_their_structure(name):
+    """ldbn's cards space (and even) their sets before imposing n-rooks where it holds, and
+    after thinning where it does not."""
+    pipe = diffsampler_rt.load(name).card["pipeline"]
+    steps = [(e["step"], e.get("where")) for e in pipe]
+    structure_at, thin_at = steps.index(("n_rooks", None)), steps.index(("thin", None))
+    assert structure_at < thin_at
+    for move in ("min_spacing", "even_out"):
+        assert steps.index((move, "structured")) < structure_at
+        assert steps.index((move, "unstructured")) > thin_at
+
+
+@pytest.mark.parametrize("pipeline, message", [
+    ([{"step": "structure_guidance", "steps": 2}, {"step": "thin"}],
+     "pipeline entry 0 ('structure_guidance') needs a structure step in the pipeline"),
+    ([{"step": "min_spacing", "c": 0.7, "where": "structured"}, {"step": "thin"}],
+     "pipeline entry 0 ('min_spacing') needs a structure step in the pipeline"),
+    ([{"step": "thin", "min_side": 16}], "step 'thin' has no parameter 'min_side'"),
+    ([{"step": "n_rooks", "min_side": 0}, {"step": "thin"}],
+     "pipeline entry 0: step 'n_rooks': 'min_side' must be an integer in [1, inf], got 0"),
+    ([{"step": "structure_guidance", "steps": -1}, {"step": "n_rooks"}, {"step": "thin"}],
+     "pipeline entry 0: step 'structure_guidance': 'steps' must be an integer in [1, inf], "
+     "got -1"),
+    ([{"step": "structure_guidance", "steps": 0}, {"step": "n_rooks"}, {"step": "thin"}],
+     "got 0"),
+    ([{"step": "structure_guidance", "steps": True}, {"step": "n_rooks"}, {"step": "thin"}],
+     "got True"),
+    ([{"step": "structure_guidance", "steps": 2.5}, {"step": "n_rooks"}, {"step": "thin"}],
+     "got 2.5"),
+    ([{"step": "n_rooks"}, {"step": "dyadic_net"}, {"step": "thin"}],
+     "a pipeline holds at most one structure step, got ['n_rooks', 'dyadic_net']"),
 ])
-def test_structure_settings_are_validated(extra, message):
-    from diffsampler_rt.card import CARD_KEY, parse_card
-    card = {**diffsampler_rt.load("sobol_owen").card, **extra}
-    card.pop("structure", None) if "structure" not in extra else None
-    with pytest.raises(ModelFormatError, match=message):
-        parse_card({CARD_KEY: json.dumps(card)}, "m")
+def test_structure_settings_are_validated(pipeline, message):
+    pipeline_card_error("sobol_owen", pipeline, message)
 
 
 def test_docstring_examples():
@@ -361,39 +448,43 @@ def test_runs_are_validated(run):
         structure.impose_runs(jittered(24, 1), 24, run)
 
 
-@pytest.mark.parametrize("card_change, message", [
-    ({"structure_runs": 1}, "must be an integer >= 2, got 1"),
-    ({"structure_runs": 16.0}, "got 16.0"),
-    ({"structure_runs": True}, "got True"),
-    ({"structure_runs": 16, "structure": "dyadic_net", "structure_guidance": None,
-      "structure_block": None}, "needs the structure 'n_rooks'"),
+@pytest.mark.parametrize("edit, message", [
+    (_n_rooks_changed(runs=1), "step 'n_rooks': 'runs' must be an integer in [2, inf], got 1"),
+    (_n_rooks_changed(runs=16.0), "got 16.0"),
+    (_n_rooks_changed(runs=True), "got True"),
+    (_n_rooks_replaced({"step": "dyadic_net", "runs": 16}),
+     "step 'dyadic_net' has no parameter 'runs'"),
 ])
-def test_card_structure_runs_is_validated(card_change, message):
-    assert message in changed_card_error("ldbn_fast", card_change, "structure_runs")
+def test_card_structure_runs_is_validated(edit, message):
+    assert message in changed_pipeline_error("ldbn_fast", edit, "runs")
 
 
 def test_card_structure_runs_apply_at_other_sides_only(tiny_onnx, tmp_path, capsys):
-    """set-defaults --structure-runs 16: at k = 24 (not a power of two) the sets' full runs
-    are stratified, projected in the guided steps too; power-of-two sides are as before."""
-    from export.__main__ import main as export_main
+    """pipeline --update n_rooks --runs 16: at k = 24 (not a power of two) the sets' full
+    runs are stratified, projected in the guided steps too; power-of-two sides are as
+    before."""
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_onnx, path)
-    args = ["set-defaults", str(path), "--structure", "n_rooks", "--structure-min-side", "16"]
-    assert export_main(args) == 0
+    assert _export_pipeline(path, "--add", "n_rooks", "--min-side", "16", "--at", "0") == 0
     plain = diffsampler_rt.Model(path)
     assert np.all(_runs_strata(plain.generate(576, 2, seed=4), 24, 16) == -1)
     capsys.readouterr()
-    assert export_main(["set-defaults", str(path), "--structure-runs", "16"]) == 0
-    assert "other sides: runs of 16 cells stratified" in capsys.readouterr().out
+    assert _export_pipeline(path, "--update", "n_rooks", "--runs", "16") == 0
+    assert "0. n_rooks: n-rooks projections imposed at k >= 16, runs of 16 at other sides" \
+        in capsys.readouterr().out
     m = diffsampler_rt.Model(path)
     out = m.generate(576, 2, seed=4)
     assert np.all(_runs_strata(out, 24, 16) >= 0)
     for n in (256, 1024, 144):  # powers of two as before; k = 12 < 16: no structure
         np.testing.assert_array_equal(m.generate(n, 2, seed=4), plain.generate(n, 2, seed=4))
-    assert export_main(["set-defaults", str(path), "--structure-guidance", "2"]) == 0
+    assert _export_pipeline(path, "--add", "structure_guidance", "--steps", "2", "--at",
+                            "0") == 0
     guided = diffsampler_rt.Model(path).generate(576, 2, seed=4)
     assert np.all(_runs_strata(guided, 24, 16) >= 0) and not np.array_equal(guided, out)
-    assert export_main(["set-defaults", str(path), "--structure-runs", "1"]) == 2
-    assert "--structure-runs must be an integer >= 2 or none, got '1'" in capsys.readouterr().err
-    assert export_main(["set-defaults", str(path), "--structure-runs", "none"]) == 0
-    assert "structure_runs" not in diffsampler_rt.Model(path).card
+    _refused(path, capsys, ["--update", "n_rooks", "--runs", "1"],
+             "step 'n_rooks': 'runs' must be an integer in [2, inf], got 1")
+    assert _export_pipeline(path, "--update", "n_rooks", "--runs", "none") == 0
+    assert "runs" not in _entry(path, "n_rooks")
+    np.testing.assert_array_equal(diffsampler_rt.Model(path).generate(576, 2, seed=4),
+                                  diffsampler_rt.Model(path).generate(576, 2, seed=4,
+                                                                      structure=False))

@@ -1,4 +1,6 @@
-"""Command line: ``python -m trainer train|prepare|distil|spacing CONFIG``, ``python -m trainer
+"""Command line: ``python -m trainer fit EXAMPLES... --name NAME`` (learn a sampler from
+example sets), ``python -m trainer calibrate MODEL.onnx EXAMPLES...``,
+``python -m trainer train|prepare|distil|spacing CONFIG``, ``python -m trainer
 sample NAME N`` and ``python -m trainer optimise CHECKPOINT N`` (property optimisation of the
 input noise)."""
 from __future__ import annotations
@@ -167,6 +169,40 @@ def main(argv: list[str] | None = None) -> int:
     o.add_argument("-o", "--output", type=Path, required=True, help=".npy, .txt or .csv")
     o.add_argument("--log", type=Path, help="trajectory as CSV (iteration, mean, per set)")
 
+    f = sub.add_parser("fit", help="learn a sampler from your own example point sets")
+    f.add_argument("examples", nargs="+", help=".npy (S, n, 2) or (n, 2) arrays, .txt / .csv "
+                   "files as `diffsampler generate` writes them, text files of 'x y' lines, "
+                   "or folders of these; sizes n = k*k, k >= 4")
+    f.add_argument("--name", required=True, help="the model's name: OUT/NAME.onnx")
+    f.add_argument("-o", "--out", type=Path, default=Path("."), help="output folder")
+    f.add_argument("--minutes", type=float, default=None,
+                   help="training budget in minutes (default 20; export, calibration and "
+                        "report come on top)")
+    f.add_argument("--init", help="start from a bundled model or an exported .onnx "
+                   "(fine-tuning)")
+    f.add_argument("--symmetries", default="0",
+                   help="symmetries of the square the examples have, as augmentations: "
+                        "comma-separated 0-7 (1 mirror x, 2 mirror y, 4 swap x and y, and "
+                        "their combinations), or 'all'; checked against the examples")
+    f.add_argument("--toroidal", action="store_true",
+                   help="the examples are sets on the torus (translation invariant): a "
+                        "circular-padding net, shifted copies as augmentations")
+    f.add_argument("--fast", action="store_true",
+                   help="also distil a 6-step student, NAME_fast.onnx (half the minutes again)")
+    f.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
+    f.add_argument("--threads", type=int, help="torch threads (default: the cores, <= 8)")
+    f.add_argument("--net", default="standard", choices=["standard", "small"],
+                   help="standard: the bundled models' network (needed by --init); small: "
+                        "quick trials")
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--no-progress", action="store_true")
+
+    cal = sub.add_parser("calibrate", help="choose a model's finishing steps from example "
+                         "sets (the procedure fit runs), written into its card")
+    cal.add_argument("model", type=Path, help="an exported .onnx (edited in place)")
+    cal.add_argument("examples", nargs="+", help="example sets, as for fit")
+    cal.add_argument("--seed", type=int, default=0)
+
     args = p.parse_args(argv)
     try:
         with warnings.catch_warnings():  # restores the caller's showwarning afterwards
@@ -175,7 +211,48 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("interrupted (a fit or train run resumes from its last checkpoint when run "
+              "again)", file=sys.stderr)
+        return 130
     return 0
+
+
+def _symmetries(text: str) -> list[int]:
+    if text == "all":
+        return list(range(8))
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--symmetries must be integers 0-7 separated by commas, or all; "
+                         f"got {text!r}") from None
+    return values
+
+
+def _fit(args: argparse.Namespace) -> None:
+    from .fitting.run import DEFAULT_MINUTES, fit
+    fit(args.examples, name=args.name, out=args.out,
+        minutes=DEFAULT_MINUTES if args.minutes is None else args.minutes, init=args.init,
+        device=args.device, symmetries=_symmetries(args.symmetries), toroidal=args.toroidal,
+        seed=args.seed, threads=args.threads, net=args.net, fast=args.fast,
+        progress=not args.no_progress)
+
+
+def _calibrate(args: argparse.Namespace) -> None:
+    import diffsampler_rt
+
+    from .fitting.analysis import analyse
+    from .fitting.calibrate import calibrate
+    from .fitting.examples import read_examples
+    model = diffsampler_rt.Model(args.model)  # a bad model file fails before any work
+    ex = read_examples(args.examples)
+    analysis = analyse(ex)
+    held_in = {n: np.concatenate(list(ex.iter_sets(n)))[:1024] for n in ex.sizes}
+    card = calibrate(model.path, held_in, analysis.structure, analysis.structure_sizes,
+                     uniform=analysis.uniform and "density" not in model.card, seed=args.seed)
+    from diffsampler_rt.finish.pipeline import describe
+    for i, line in enumerate(describe(card["pipeline"])):
+        print(f"{i}. {line}")
 
 
 def _run(args: argparse.Namespace) -> None:
@@ -212,6 +289,10 @@ def _run(args: argparse.Namespace) -> None:
         _spacing(args)
     elif args.cmd == "optimise":
         _optimise(args)
+    elif args.cmd == "fit":
+        _fit(args)
+    elif args.cmd == "calibrate":
+        _calibrate(args)
     else:
         from .samplers import sample
         pts = sample(args.name, args.n, count=args.count, seed=args.seed,

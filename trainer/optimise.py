@@ -75,15 +75,17 @@ OBJECTIVES: dict[str, Objective] = {"l2_star": l2_star_torch, "ot_proxy": sliced
 
 def decode_torch(grid: torch.Tensor, offset_scale: float, stratified: bool) -> torch.Tensor:
     """Scaled offsets (B, 2, k, k) -> points (B, k*k, 2), as diffsampler_rt.grid.decode
-    (clamped into the cell or the square; the gradient is zero where a point is clamped)."""
+    (reflected into the cell or the square; the gradient's sign flips where a point is)."""
+    from .spectral import reflect
     k = grid.shape[-1]
     g = grid / offset_scale
     if stratified:
-        g = g.clamp(-0.5, 0.5)
+        g = reflect(g + 0.5) - 0.5
     centre = torch.arange(k, dtype=g.dtype) + 0.5
     x = (g[:, 0] + centre[None, None, :]) / k
     y = (g[:, 1] + centre[None, :, None]) / k
-    return torch.stack([x, y], dim=-1).reshape(grid.shape[0], k * k, 2).clamp(0.0, 1.0 - 1e-12)
+    pts = torch.stack([x, y], dim=-1).reshape(grid.shape[0], k * k, 2)
+    return pts.clamp(0.0, 1.0 - 1e-12) if stratified else reflect(pts).clamp(0.0, 1.0 - 1e-12)
 
 
 def reverse(net: torch.nn.Module, z: torch.Tensor, alpha_bar: torch.Tensor, ts: np.ndarray,

@@ -86,18 +86,25 @@ class AxisSpectrum(torch.nn.Module):
         return power.mean(dim=(0, 2)) / self.n
 
 
+def reflect(values: torch.Tensor) -> torch.Tensor:
+    """:func:`diffsampler_rt.grid.reflect` in torch, differentiable (slope +-1): values
+    folded into [0, 1] by reflection at 0 and 1."""
+    v = torch.remainder(values.abs(), 2.0)
+    return torch.where(v >= 1.0, 2.0 - v, v)
+
+
 def grid_points(grid: torch.Tensor, *, stratified: bool = False,
                 toroidal: bool = False) -> torch.Tensor:
     """Offsets (B, 2, k, k) in cell units -> points (B, k*k, 2), as
     :func:`diffsampler_rt.grid.decode` (row-major cells), differentiable: a stratified
-    embedding's offsets clamped to their cells, other points clamped to the unit square,
-    except on the torus, where they are left as they are (the spectrum is periodic: the
-    same figure as the points taken modulo 1)."""
+    embedding's offsets reflected into their cells, other points reflected into the unit
+    square, except on the torus, where they are left as they are (the spectrum is periodic:
+    the same figure as the points taken modulo 1)."""
     k = grid.shape[-1]
     if stratified:
-        grid = grid.clamp(-0.5, 0.5)
+        grid = reflect(grid + 0.5) - 0.5
     centre = torch.arange(k, dtype=grid.dtype, device=grid.device) + 0.5
     x = (grid[:, 0] + centre[None, None, :]) / k
     y = (grid[:, 1] + centre[None, :, None]) / k
     pts = torch.stack([x, y], dim=-1).reshape(grid.shape[0], k * k, 2)
-    return pts if stratified or toroidal else pts.clamp(0.0, 1.0)
+    return pts if stratified or toroidal else reflect(pts)

@@ -97,7 +97,7 @@ class Trainer:
     """Trains one config in ``run_dir``; resumes exactly from ``run_dir/checkpoint.pt``."""
 
     def __init__(self, cfg: TrainConfig, run_dir: str | Path, progress: bool = True,
-                 device: str = "cpu", workers: int = 1):
+                 device: str = "cpu", workers: int = 1, batches: Any = None):
         self.cfg = cfg
         # not part of the config: a run may move between CPU and GPU and still resume
         self.device = torch.device(device)
@@ -120,7 +120,9 @@ class Trainer:
                                      weight_decay=cfg.weight_decay)
         self.devices = [self.device.type]  # every device this run has trained on
         self.diffusion = Diffusion(cfg.schedule)
-        self.batches = Batches(cfg.data, cfg.seed, progress, workers)
+        # a fit's examples bring their own batches (trainer.fit.data.ExampleBatches)
+        self.batches = batches if batches is not None else Batches(cfg.data, cfg.seed,
+                                                                   progress, workers)
         self.rng = np.random.default_rng([cfg.seed, 1])
         self.gen = torch.Generator().manual_seed(cfg.seed)
         self.step = 0
@@ -180,6 +182,23 @@ def restore_state(runner: Any, st: dict[str, Any], *, same_config: bool,
     runner.devices = sorted(set(devices) | {runner.device.type})
 
 
+def average_gradients(model: torch.nn.Module) -> None:
+    """Data-parallel training (``torchrun``, :mod:`torch.distributed` initialised): every
+    process's gradients replaced by their mean over the processes, so that all of them take
+    the same step and hold the same weights. A no-op in a single process."""
+    import torch.distributed as dist
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return
+    grads = [p.grad for p in model.parameters() if p.grad is not None]
+    flat = torch.cat([g.reshape(-1) for g in grads])
+    dist.all_reduce(flat)
+    flat /= dist.get_world_size()
+    start = 0
+    for g in grads:
+        g.copy_(flat[start:start + g.numel()].view_as(g))
+        start += g.numel()
+
+
 def optimiser_step(runner: Any, losses: Iterable[torch.Tensor]) -> list[float]:
     """One step of :class:`Trainer` or :class:`trainer.distil.Distiller`: learning rate for
     ``runner.step``, gradients summed over ``losses`` (one per grid size, drawn lazily after
@@ -192,6 +211,7 @@ def optimiser_step(runner: Any, losses: Iterable[torch.Tensor]) -> list[float]:
     for loss in losses:
         loss.backward()  # summed over sizes: gradients accumulate
         values.append(loss.item())
+    average_gradients(runner.model)
     torch.nn.utils.clip_grad_norm_(runner.model.parameters(), cfg.grad_clip)
     runner.opt.step()
     update_ema(runner.ema, runner.model, cfg.ema_decay)

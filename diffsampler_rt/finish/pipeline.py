@@ -8,7 +8,7 @@ whether the structure holds there (for entries that say ``"where"``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -54,6 +54,9 @@ def pipeline_problem(pipeline: Any) -> str | None:
     for i, entry in enumerate(pipeline):
         if problem := entry_problem(entry):
             return f"pipeline entry {i}: {problem}"
+    if not any(STEPS[e["step"]].essential for e in pipeline):
+        return ("a pipeline needs a 'thin' step: an n that is not a square makes the next "
+                "square's set, thinned to n points")
     structures = [e["step"] for e in pipeline if STEPS[e["step"]].structure]
     if len(structures) > 1:
         return f"a pipeline holds at most one structure step, got {structures}"

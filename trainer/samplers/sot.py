@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 # the runtime polishes generated sets with the same update (diffsampler_rt.sliced_ot)
-from diffsampler_rt.sliced_ot import disk_quantiles, disk_to_square, sliced_step
+from diffsampler_rt.disk_transport import disk_quantiles, disk_to_square, sliced_step
 
 __all__ = ["disk_quantiles", "disk_to_square", "sot", "sot_disk"]
 

@@ -1,0 +1,267 @@
+"""Learning a sampler from example files (trainer.fitting, `python -m trainer fit`):
+reading and checking the examples, the analysis, the held-out split, calibration, exact
+resumption, data-parallel training, and one small fit end to end."""
+from __future__ import annotations
+
+import functools
+import re
+
+import numpy as np
+import pytest
+
+from trainer.fitting.analysis import analyse, describe
+from trainer.fitting.data import split
+from trainer.fitting.examples import ExampleError, read_examples
+from trainer.samplers import sample
+
+
+@functools.lru_cache(maxsize=None)
+def drawn(name: str, n: int, count: int, seed: int) -> np.ndarray:
+    """A built-in sampler's sets (the slow ones drawn once for every test here)."""
+    return sample(name, n, count=count, seed=seed)
+
+
+def jittered(n: int, count: int, seed: int) -> np.ndarray:
+    from diffsampler_rt.grid import cell_centres
+    k = int(np.sqrt(n))
+    rng = np.random.default_rng(seed)
+    return cell_centres(k)[None] + rng.uniform(-0.5, 0.5, (count, n, 2)) / k
+
+
+# ---- reading ------------------------------------------------------------------------------
+
+def test_every_accepted_format_reads_the_same_sets(tmp_path):
+    sets = jittered(16, 3, 0)
+    np.save(tmp_path / "a.npy", sets)
+    np.save(tmp_path / "one.npy", sets[0])
+    with open(tmp_path / "b.txt", "w") as fh:  # diffsampler generate's txt: blank lines
+        fh.write("\n\n".join("\n".join(f"{x!r} {y!r}" for x, y in s.tolist()) for s in sets) + "\n")
+    with open(tmp_path / "c.csv", "w") as fh:
+        fh.write("set,x,y\n" + "".join(f"{i},{x!r},{y!r}\n" for i, s in enumerate(sets)
+                                       for x, y in s.tolist()))
+    with open(tmp_path / "d.dat", "w") as fh:  # UTK-style: a comment, one set per file
+        fh.write("# 16 points\n" + "".join(f"{x!r}\t{y!r}\n" for x, y in sets[1].tolist()))
+    for name, want in (("a.npy", sets), ("one.npy", sets[:1]), ("b.txt", sets),
+                       ("c.csv", sets), ("d.dat", sets[1:2])):
+        ex = read_examples(tmp_path / name)
+        assert ex.sizes == [16]
+        np.testing.assert_array_equal(np.concatenate(list(ex.iter_sets(16))), want)
+    folder = read_examples([tmp_path, jittered(64, 2, 1)])  # a folder and an array
+    assert folder.sizes == [16, 64] and folder.count(16) == 3 + 1 + 3 + 3 + 1
+    np.testing.assert_array_equal(folder.take(16, np.array([4, 0])), np.stack([sets[1], sets[0]]))
+
+
+BAD = [
+    ("empty.txt", "", "empty file"),
+    ("nan.npy", np.full((2, 16, 2), np.nan), "set 0 holds NaN"),
+    ("inf.txt", "0.1 0.2\n" * 15 + "inf 0.3\n", "NaN or infinite"),
+    ("outside.npy", np.full((3, 16, 2), 0.5) + [[[0, 0]], [[0, 0]], [[0.6, 0]]],
+     "set 2 has points outside"),
+    ("ragged.txt", "0.1 0.2\n" * 16 + "\n" + "0.1 0.2\n" * 9, "different sizes"),
+    ("one.txt", "0.5 0.5\n", "n = 1"),
+    ("columns.txt", "0.1 0.2 0.3\n", "line 1 has 3 columns"),
+    ("words.txt", "0.1 abc\n", "line 1 is not numbers"),
+    ("shape.npy", np.zeros((2, 16, 3)), "shape (2, 16, 3)"),
+    ("square.npy", np.full((2, 50, 2), 0.5), "nearest squares 49 or 64"),
+    ("binary.txt", bytes(range(256)) * 4, "binary file"),
+    ("csv.csv", "set,x,y\n0,0.1,0.2\n2,0.3,0.4\n", "set 2 follows set 0"),
+]
+
+
+@pytest.mark.parametrize("name, content, message", BAD, ids=[b[0] for b in BAD])
+def test_bad_examples_are_refused_naming_the_file(tmp_path, name, content, message):
+    path = tmp_path / name
+    if isinstance(content, np.ndarray):
+        np.save(path, content)
+    elif isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    with pytest.raises(ExampleError, match=re.escape(message)) as err:
+        read_examples(path)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_cli_refuses_bad_examples_in_one_line_before_any_work(tmp_path, capsys):
+    from trainer.__main__ import main
+    np.save(tmp_path / "nan.npy", np.full((20, 16, 2), np.nan))
+    out = tmp_path / "out"
+    assert main(["fit", str(tmp_path / "nan.npy"), "--name", "x", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "nan.npy" in err and len(err.splitlines()) == 1
+    assert not out.exists()  # nothing written
+    np.save(tmp_path / "few.npy", jittered(16, 10, 0))
+    assert main(["fit", str(tmp_path / "few.npy"), "--name", "x", "-o", str(out)]) == 2
+    assert "10 example sets; a fit needs at least 12" in capsys.readouterr().err
+    assert main(["fit", str(tmp_path / "few.npy"), "--name", "a/b"]) == 2
+    assert main(["fit", str(tmp_path / "few.npy"), "--name", "x", "--symmetries", "9"]) == 2
+
+
+def test_a_large_file_is_read_in_chunks_not_whole(tmp_path):
+    np.save(tmp_path / "big.npy", jittered(64, 600, 2))
+    ex = read_examples(tmp_path / "big.npy")
+    chunks = list(ex.iter_sets(64, chunk=256))
+    assert [len(c) for c in chunks] == [256, 256, 88]
+    assert isinstance(np.load(tmp_path / "big.npy", mmap_mode="r"), np.memmap)
+
+
+# ---- analysis and split -------------------------------------------------------------------
+
+def thomas(count: int, n: int, seed: int) -> np.ndarray:
+    """A clustered but uniform process (parents uniform, children Gaussian around them on
+    the torus), n points a set."""
+    rng = np.random.default_rng(seed)
+    parents = rng.random((count, n // 8, 1, 2))
+    kids = (parents + rng.normal(0, 0.02, (count, n // 8, 8, 2))) % 1.0
+    return np.where(kids >= 1, 0, kids).reshape(count, n, 2)
+
+
+def test_analysis_finds_embedding_uniformity_and_structure():
+    nets = analyse(read_examples([sample("sobol_owen", 256, count=24, seed=1)]))
+    assert (nets.embedding, nets.uniform, nets.structure) == ("stratified", True, "dyadic_net")
+    blue = analyse(read_examples([drawn("poisson_disk", 64, 32, 2)]))
+    assert (blue.embedding, blue.uniform, blue.structure) == ("ot", True, None)
+    clustered = analyse(read_examples([thomas(48, 256, 3)]))
+    assert clustered.uniform  # over-dispersed counts are not a density
+    ramp = analyse(read_examples([drawn("sot_ramp", 64, 32, 2)]))
+    assert not ramp.uniform and "NOT uniform" in " ".join(describe(ramp))
+
+
+def test_asserted_invariances_are_checked_against_the_examples():
+    ramp = read_examples([drawn("sot_ramp", 64, 32, 2)])
+    warned = analyse(ramp, symmetries=[1, 2])
+    assert any("symmetry" in w for w in warned.warnings)
+    fine = analyse(read_examples([drawn("poisson_disk", 64, 32, 2)]),
+                   symmetries=list(range(8)))
+    assert fine.warnings == []
+    # a square's edges that the sets avoid: not toroidal
+    inner = 0.1 + 0.8 * jittered(256, 40, 5)
+    assert any("edges" in w for w in analyse(read_examples([inner]), toroidal=True).warnings)
+
+
+def test_the_split_holds_out_sets_of_every_size_and_is_seeded():
+    ex = read_examples([jittered(16, 40, 0), jittered(64, 12, 1)])
+    a, b = split(ex, 3), split(ex, 3)
+    assert {n: len(v) for n, v in a.held_out.items()} == {16: 8, 64: 8}
+    assert {n: len(v) for n, v in a.held_in.items()} == {16: 32, 64: 4}
+    for n in (16, 64):
+        np.testing.assert_array_equal(a.held_out[n], b.held_out[n])
+        assert not set(a.held_in[n]) & set(a.held_out[n])
+
+
+# ---- calibration --------------------------------------------------------------------------
+
+def test_spacing_is_calibrated_from_the_examples_smallest_distances():
+    from trainer.fitting.calibrate import base_pipeline, spacing
+    from trainer.stats.distance import spacing_coefficient
+    blue = {64: drawn("poisson_disk", 64, 32, 2)}
+    cs, is_blue = spacing(blue)
+    assert is_blue and cs[64] == pytest.approx(spacing_coefficient(blue[64], 5.0))
+    assert base_pipeline(None, cs, True) == [{"step": "thin", "drop": "crowded"},
+                                             {"step": "min_spacing", "c": round(cs[64], 4)}]
+    white = {256: np.random.default_rng(0).random((40, 256, 2))}
+    cs, is_blue = spacing(white)
+    assert not is_blue and base_pipeline(None, cs, False) == [{"step": "thin", "drop": "random"}]
+    # with a structure the spacing comes before it where it holds, after thinning elsewhere
+    pipe = base_pipeline({"step": "n_rooks", "min_side": 16}, {256: 0.7}, True)
+    assert [(e["step"], e.get("where")) for e in pipe] == [
+        ("min_spacing", "structured"), ("n_rooks", None), ("thin", None),
+        ("min_spacing", "unstructured")]
+
+
+def test_evening_gain_follows_the_power_ratio():
+    from trainer.fitting.calibrate import evening, low_power
+    examples = {64: drawn("poisson_disk", 64, 32, 2)}
+    same, _ = evening(lambda n, c: drawn("poisson_disk", n, 64, 7)[:c], examples)
+    assert same == {64: 0.0}  # within noise: no evening
+    white, figures = evening(lambda n, c: np.random.default_rng(1).random((c, n, 2)), examples)
+    ratio = figures[64]["power_ratio"]
+    assert ratio > 2 and white[64] == pytest.approx(min(0.9, 1 - 1 / np.sqrt(ratio)), abs=1e-3)
+    assert low_power(examples[64]).shape == (32,)
+
+
+# ---- training: resumption and data parallelism ---------------------------------------------
+
+def tiny_fit_trainer(run_dir, pools, seed=0):
+    from trainer.fitting.data import ExampleBatches
+    from trainer.train import Trainer
+
+    from .conftest import tiny_config
+    cfg = tiny_config(sampler="examples:t")
+    batches = ExampleBatches(pools, {4: 4, 8: 2}, 2.0, (0, 1))
+    return Trainer(cfg, run_dir, progress=False, batches=batches)
+
+
+def test_a_restarted_fit_resumes_to_the_same_weights(tmp_path):
+    torch = pytest.importorskip("torch")
+    from trainer.embedding import embed
+    pools = {4: embed(jittered(16, 10, 0), "stratified").astype(np.float32),
+             8: embed(jittered(64, 10, 1), "stratified").astype(np.float32)}
+    whole = tiny_fit_trainer(tmp_path / "a", pools)
+    whole.run(until_step=6)
+    first = tiny_fit_trainer(tmp_path / "b", pools)
+    first.run(until_step=3)  # "killed" after its checkpoint at step 3
+    again = tiny_fit_trainer(tmp_path / "b", pools)
+    assert again.step == 3
+    again.run(until_step=6)
+    for (k, a), b in zip(whole.model.state_dict().items(), again.model.state_dict().values()):
+        assert torch.equal(a, b), k
+
+
+def _ddp_worker(rank: int, world: int, init: str, out: str) -> None:
+    import torch
+    import torch.distributed as dist
+
+    from trainer.embedding import embed
+    dist.init_process_group("gloo", init_method=init, rank=rank, world_size=world)
+    # each process its own shard of the examples, so different batches
+    pools = {4: embed(jittered(16, 8, 10 + rank), "stratified").astype(np.float32),
+             8: embed(jittered(64, 8, 20 + rank), "stratified").astype(np.float32)}
+    tr = tiny_fit_trainer(f"{out}/rank{rank}", pools)
+    sums = []
+    for _ in range(3):
+        tr.train_step()
+        flat = torch.cat([p.detach().reshape(-1) for p in tr.model.parameters()])
+        gathered = [torch.empty_like(flat) for _ in range(world)]
+        dist.all_gather(gathered, flat)
+        sums.append(all(torch.equal(gathered[0], g) for g in gathered))
+    torch.save(sums, f"{out}/ok{rank}.pt")
+    dist.destroy_process_group()
+
+
+def test_two_gloo_processes_hold_identical_weights_after_each_step(tmp_path):
+    torch = pytest.importorskip("torch")
+    import torch.multiprocessing as mp
+    init = f"file://{tmp_path / 'rendezvous'}"
+    mp.spawn(_ddp_worker, args=(2, init, str(tmp_path)), nprocs=2, join=True)
+    for rank in range(2):
+        assert torch.load(tmp_path / f"ok{rank}.pt") == [True, True, True]
+
+
+# ---- end to end ---------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_a_small_fit_end_to_end(tmp_path, capsys):
+    import diffsampler_rt
+    from trainer.__main__ import main
+    np.save(tmp_path / "ex64.npy", sample("sobol_owen", 64, count=20, seed=3))
+    with open(tmp_path / "ex16.txt", "w") as fh:
+        for s in sample("sobol_owen", 16, count=20, seed=4):
+            fh.write("".join(f"{x!r} {y!r}\n" for x, y in s.tolist()) + "\n")
+    out = tmp_path / "out"
+    assert main(["fit", str(tmp_path / "ex64.npy"), str(tmp_path / "ex16.txt"), "--name",
+                 "mine", "-o", str(out), "--minutes", "0.1", "--net", "small",
+                 "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "structure every set has: dyadic_net" in printed
+    model = diffsampler_rt.load(out / "mine.onnx")
+    steps = [e["step"] for e in model.card["pipeline"]]
+    assert steps[:2] == ["dyadic_net", "thin"] and model.card["fit"]["examples"]["64"] == {
+        "sets": 20, "held_out": 8}
+    pts = diffsampler_rt.generate(out / "mine.onnx", 100, 3, seed=1)
+    assert pts.shape == (3, 100, 2) and np.all((pts >= 0) & (pts < 1))
+    report = (out / "mine.report.md").read_text()
+    for figure in ("radial spectrum", "pair correlation", "star L2", "n = 256"):
+        assert figure in report
+    assert (out / "mine.report.png").stat().st_size > 0
+    assert not list(out.glob("*.partial*"))
