@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 import warnings
 from pathlib import Path
 from typing import IO, Iterable
@@ -28,6 +29,30 @@ FORMATS = ("txt", "npy", "csv")
 def _warn_one_line(message, category, filename, lineno, file=None, line=None) -> None:
     """A warning as one line on stderr, like the errors (not Python's file:line form)."""
     print(f"diffsampler: warning: {message}", file=sys.stderr)
+
+
+_TERMINATED: list[int] = []
+
+
+class _terminate_as_interrupt:
+    """SIGTERM handled as Ctrl-C while a command runs (so a partial file is cleaned up and
+    the command ends in one line); the previous handler restored afterwards."""
+
+    def __enter__(self):
+        import signal
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            def handler(signum, frame):
+                _TERMINATED.append(signum)
+                raise KeyboardInterrupt
+            self.previous = signal.signal(signal.SIGTERM, handler)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+        return False
 
 
 class _Parser(argparse.ArgumentParser):
@@ -61,14 +86,36 @@ def _write(blocks: Iterable[np.ndarray], shape: tuple[int, ...], fmt: str,
             i += 1
 
 
-def _model(name: str, threads: int | None):
-    """The loaded model (cached), or a model of its own with ``threads`` cores."""
+def _model(name: str, threads: int | None, providers: list | None = None):
+    """The loaded model (cached), or a model of its own with ``threads`` cores or other
+    execution providers."""
     from .model import Model, load
-    return load(name) if threads is None else Model(name, threads=threads)
+    if threads is None and providers is None:
+        return load(name)
+    return Model(name, threads=threads, providers=providers)
+
+
+def _check_output(path: Path | None, suffixes: tuple[str, ...] | None = None,
+                  fmt: str | None = None) -> None:
+    """Refuse an output path before any work: a folder, a missing folder, a suffix that
+    contradicts the format, or one that is not among ``suffixes``."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise ValueError(f"output {str(path)!r} is a folder; give a file name")
+    if not path.parent.is_dir():
+        raise ValueError(f"output {str(path)!r}: folder {str(path.parent)!r} does not exist")
+    suffix = path.suffix.lstrip(".").lower()
+    if fmt is not None and suffix in FORMATS and suffix != fmt:
+        raise ValueError(f"output {str(path)!r} ends in .{suffix} but --format is {fmt}")
+    if suffixes is not None and suffix not in suffixes:
+        raise ValueError(f"output {str(path)!r}: the figure's format comes from its suffix; "
+                         f"use {', '.join('.' + s for s in suffixes)}")
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
     fmt = args.format
+    _check_output(args.output, fmt=fmt)
     if fmt is None:
         suffix = args.output.suffix.lstrip(".").lower() if args.output else ""
         fmt = suffix if suffix in FORMATS else "txt"
@@ -76,7 +123,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
         # checked before the (possibly long) generation, not after it
         raise ValueError("refusing to write binary .npy data to a terminal; give -o FILE.npy "
                          "or redirect stdout")
-    model = _model(args.model, args.threads)
+    model = _model(args.model, args.threads, args.provider)
     show = args.count is not None and args.count > 1 and sys.stderr.isatty()
     # the sets block by block (the same sets as generate's); bad arguments fail here,
     # before any output
@@ -100,6 +147,7 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 
 
 def _cmd_plot(args: argparse.Namespace) -> None:
+    _check_output(args.output, suffixes=("png", "pdf", "svg"))
     from .plot import plot_sets
     if str(args.source).endswith(".npy"):
         if args.n is not None:
@@ -109,7 +157,7 @@ def _cmd_plot(args: argparse.Namespace) -> None:
     else:
         if args.n is None:
             raise ValueError("plotting a model needs N, the number of points per set")
-        model = _model(args.source, args.threads)
+        model = _model(args.source, args.threads, args.provider)
         pts = model.generate(args.n, args.count, seed=args.seed, steps=args.steps,
                              solver=args.solver)
         title = model.name
@@ -162,6 +210,10 @@ def _add_sampling_options(parser: argparse.ArgumentParser) -> None:
                         help="default: the model card's")
     parser.add_argument("--threads", type=int, default=None,
                         help="cores to use (default: every core this process may run on)")
+    parser.add_argument("--provider", action="append", default=None, metavar="NAME",
+                        help="onnxruntime execution provider for the network, e.g. "
+                             "CUDAExecutionProvider (repeat for a fallback order; default "
+                             "the CPU)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -174,13 +226,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--count", type=int, default=None, help="number of sets (default 1)")
     _add_sampling_options(g)
     g.add_argument("--no-structure", action="store_true",
-                   help="return the network's sets as decoded: no net, n-rooks or lattice "
-                        "structure (sobol_owen, ldbn, rank1, lattice), no sliced-OT polish "
-                        "(SOT models), no evening out at large scales (GBN, Poisson "
-                        "disk), no minimum spacing (blue-noise models), white starting "
-                        "noise where the card shapes it (ldbn, sobol_owen), no guide "
-                        "model (sot), thinned sets restored with the runtime's default cut "
-                        "(not the card's)")
+                   help="return the network's sets as decoded: every finishing step of the "
+                        "model's pipeline skipped (`diffsampler info MODEL` lists them) but "
+                        "thinning, which an n that is not a square needs (with its default "
+                        "restore cut)")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="default: from the -o suffix, else txt")
     g.add_argument("-o", "--output", type=Path, default=None, help="default: stdout")
@@ -202,9 +251,12 @@ def main(argv: list[str] | None = None) -> int:
 
     args = p.parse_args(argv)
     try:
-        with warnings.catch_warnings():  # restores the caller's showwarning afterwards
-            warnings.showwarning = _warn_one_line
+        with warnings.catch_warnings(), _terminate_as_interrupt():
+            warnings.showwarning = _warn_one_line  # restored with the caller's on exit
             args.func(args)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (a partial output file is removed)
+        print("diffsampler: interrupted", file=sys.stderr)
+        return 143 if _TERMINATED else 130
     except BrokenPipeError:
         # the reader closed the pipe (`diffsampler generate ... | head`): not an error;
         # point stdout at devnull so the interpreter's final flush does not complain

@@ -1,6 +1,7 @@
 """Loading diffsampler ONNX models and generating point sets with them."""
 from __future__ import annotations
 
+import difflib
 import os
 import warnings
 from functools import lru_cache
@@ -34,20 +35,34 @@ def bundled_models() -> list[str]:
 
 
 def resolve(model: str | os.PathLike) -> Path:
-    """A bundled model name or a path to an ``.onnx`` file -> an existing path."""
+    """A bundled model name or a path to an ``.onnx`` file -> an existing path.
+
+    A bare bundled name (``"gbn"``) is the bundled model, even beside a local file of that
+    name (write ``"./gbn"`` for the file). Any other existing file wins; a path that does
+    not exist but names a bundled model (``"gbn.onnx"``, ``"models/gbn.onnx"``) is that
+    bundled model; a folder is refused.
+    """
     if not isinstance(model, (str, os.PathLike)):
         raise TypeError(f"model must be a bundled model name or a path, got {model!r}")
     text = os.fspath(model)
     path = Path(text)
+    if isinstance(model, str) and text in bundled_models():
+        return MODELS_DIR / f"{text}.onnx"
     if path.is_file():
         return path.resolve()
-    if text in bundled_models():
-        return MODELS_DIR / f"{text}.onnx"
+    if path.is_dir():
+        raise ModelNotFoundError(f"model {text!r} is a folder, not an .onnx file")
+    names = bundled_models()
+    stem = path.stem if path.suffix == ".onnx" else path.name
+    if text in names or (path.suffix == ".onnx" and stem in names):
+        return MODELS_DIR / f"{stem}.onnx"
     if path.suffix == ".onnx" or os.sep in text or "/" in text:
-        raise ModelNotFoundError(f"model file {text!r} does not exist")
-    raise UnknownModelError(f"unknown model {text!r}; bundled models: "
-                            f"{', '.join(bundled_models()) or '(none)'}, or give a path to an "
-                            ".onnx file")
+        raise ModelNotFoundError(f"model file {text!r} does not exist (nor is {stem!r} a "
+                                 "bundled model)")
+    close = difflib.get_close_matches(text, names, n=3, cutoff=0.5)
+    hint = f"did you mean {', '.join(close)}? " if close else ""
+    raise UnknownModelError(f"unknown model {text!r}; {hint}bundled models: "
+                            f"{', '.join(names) or '(none)'}, or give a path to an .onnx file")
 
 
 class Model:
@@ -63,7 +78,13 @@ class Model:
         run side by side (beyond 8 cores, 8 sessions sharing the cores;
         :mod:`diffsampler_rt.shards`); a smaller batch, a single set included, runs on one
         session with that many intra-op threads (default: onnxruntime's choice). The sets
-        are the same either way, bit for bit.
+        are the same either way, bit for bit. More threads than usable cores are capped,
+        with a warning.
+    providers : list, optional
+        onnxruntime execution providers for the network, as ``onnxruntime.InferenceSession``
+        takes them (``["CUDAExecutionProvider", "CPUExecutionProvider"]``, DirectML,
+        CoreML, ...); default the CPU. Other hardware rounds differently: the sets agree
+        with the CPU's to float32 rounding of the network's output, not bit for bit.
 
     Notes
     -----
@@ -83,11 +104,10 @@ class Model:
     """
 
     def __init__(self, model: str | os.PathLike, *, threads: int | None = None,
-                 _quiet: bool = False):
+                 providers: list | None = None, _quiet: bool = False):
         self.path = resolve(model)
-        threads = None if threads is None else _validate.integer("threads", threads)
-        if threads is not None and threads < 1:
-            raise ValueError(f"threads must be >= 1, got {threads}")
+        threads = _usable_threads(threads)
+        self.providers = _validate_providers(providers)
         try:  # the card first: the session's options depend on it
             meta = read_metadata(self.path)
         except (OSError, WireFormatError):
@@ -125,7 +145,7 @@ class Model:
     def _session(self, opts: "ort.SessionOptions") -> "ort.InferenceSession":
         try:
             return ort.InferenceSession(str(self.path), sess_options=opts,
-                                        providers=["CPUExecutionProvider"])
+                                        providers=self.providers)
         except Exception as exc:  # onnxruntime raises its own non-standard exception types
             raise ModelFormatError(f"{self.path} is not a readable ONNX model: "
                                    f"{str(exc).splitlines()[0][:200]}") from None
@@ -224,6 +244,8 @@ class Model:
         T = len(self.alpha_bar)
         s = self.card["default_steps"] if steps is None else _validate.steps(steps, T)
         solver = self.card["default_solver"] if solver is None else solver
+        if not isinstance(solver, str):
+            raise TypeError(f"solver must be a solver name, got {solver!r}")
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; choose one of {list(SOLVERS)}")
         self._warn_if_undistilled(s, solver)
@@ -360,6 +382,41 @@ def session_options(threads: int | None = None, *,
     return opts
 
 
+def _usable_threads(threads: int | None) -> int | None:
+    """``threads`` checked; above the cores this process may use, capped with a warning
+    (more onnxruntime threads than cores wait on each other: 10x slower on 2 cores)."""
+    if threads is None:
+        return None
+    threads = _validate.integer("threads", threads)
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    cores = usable_cores()
+    if threads > cores:
+        warnings.warn(f"threads={threads} is more than the {cores} cores this process may "
+                      f"use; using {cores}", stacklevel=3)
+        return cores
+    return threads
+
+
+def _validate_providers(providers: list | None) -> list:
+    """onnxruntime execution providers (names, or (name, options) pairs), as
+    ``onnxruntime.InferenceSession`` takes them; default: the CPU's."""
+    if providers is None:
+        return ["CPUExecutionProvider"]
+    if isinstance(providers, (str, bytes)) or not isinstance(providers, (list, tuple)):
+        raise TypeError(f"providers must be a list of onnxruntime execution providers, got "
+                        f"{providers!r}")
+    available = ort.get_available_providers()
+    for p in providers:
+        name = p[0] if isinstance(p, tuple) else p
+        if not isinstance(name, str):
+            raise TypeError(f"a provider must be a name or a (name, options) pair, got {p!r}")
+        if name not in available:
+            raise ValueError(f"execution provider {name!r} is not available in this "
+                             f"onnxruntime; available: {', '.join(available)}")
+    return list(providers)
+
+
 @lru_cache(maxsize=16)
 def _cached(path: str, mtime: float) -> Model:
     return Model(path)
@@ -373,8 +430,12 @@ def _cached_guide(path: str, mtime: float, threads: int | None) -> Model:
     return Model(path, threads=threads, _quiet=True)
 
 
-def load(model: str | os.PathLike | Model) -> Model:
+def load(model: str | os.PathLike | Model, *, providers: list | None = None) -> Model:
     """Load (and cache) a model by bundled name or ``.onnx`` path.
+
+    ``providers``: onnxruntime execution providers to run the network on, e.g.
+    ``["CUDAExecutionProvider", "CPUExecutionProvider"]`` (default: the CPU); a model with
+    providers is not cached.
 
     Examples
     --------
@@ -384,6 +445,8 @@ def load(model: str | os.PathLike | Model) -> Model:
     """
     if isinstance(model, Model):
         return model
+    if providers is not None:
+        return Model(model, providers=providers)
     path = resolve(model)
     return _cached(str(path), path.stat().st_mtime)
 
