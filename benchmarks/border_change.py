@@ -33,9 +33,9 @@ for name in rt.list_models():
         mins = [cKDTree(s).query(s, k=2)[0][:, 1].min() * np.sqrt(n) for s in p]
         out[f"{name} {n}"] = {"border": int(np.sum((p == 0) | (p >= below))),
                               "points": int(p.size), "min": mins,
-                              "spectrum": radial_spectrum(p)[1].tolist(),
                               "half": [radial_spectrum(p[:sets // 2])[1].tolist(),
                                        radial_spectrum(p[sets // 2:])[1].tolist()]}
+        out[f"{name} {n}"]["spectrum"] = np.mean(out[f"{name} {n}"]["half"], axis=0).tolist()
 print(json.dumps(out))
 """
 

@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -77,6 +78,10 @@ def run_fit(case: str, work: Path, minutes: float) -> dict:
         return {"case": case, "error": (proc.stderr.strip().splitlines() or ["?"])[-1],
                 "wall_s": wall}
     figures = json.loads((out / f"{case}.report.json").read_text())
+    keep = ROOT / "benchmarks" / "results" / "fit"  # the fit's own report, kept beside
+    keep.mkdir(parents=True, exist_ok=True)
+    for suffix in (".report.md", ".report.png"):
+        shutil.copy(out / f"{case}{suffix}", keep / f"{case}{suffix}")
     return {"case": case, "sampler": sampler, "init": init, "target": target,
             "wall_s": wall, "figures": figures}
 
@@ -117,22 +122,23 @@ def _fig(f: dict, name: str) -> dict | None:
 def report(results: list[dict], args) -> str:
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text()
                 .splitlines() if l.startswith("model name")), platform.processor())
+    runs = sorted({r.get("command", "") for r in results if r.get("command")})
     lines = ["# Fitting built-in samplers from files, as a new user would", "",
-             f"`python benchmarks/fit.py --cases {' '.join(args.cases)} --minutes "
-             f"{args.minutes:g} --jobs {args.jobs}` on {cpu} ({os.cpu_count()} cores), each fit "
+             "Made by " + "; ".join(f"({i}) `{c}`" for i, c in enumerate(runs, 1)) + f" on {cpu} "
+             f"({os.cpu_count()} cores) (each row names its run), each fit "
              "one process with one thread, default settings otherwise. Each case's sets are "
              "drawn from the built-in sampler, written to files (`.npy`, or one `x y` text file "
              "a set), then fitted from the files. Figures at n = 1024 against the held-out "
              "example sets (never trained or calibrated on); the full per-size reports are the "
-             "fits' own `CASE.report.md`.", "",
-             "| case | wall time | spectrum MAE (floor) | target | smallest distance | "
-             "star L2 | verdicts |", "|---|---|---|---|---|---|---|"]
+             "fits' own, in [fit/](fit/) (`CASE.report.md` and `.png`).", "",
+             "| case | run | wall time | spectrum MAE (floor) | target | smallest distance | "
+             "star L2 | verdicts |", "|---|---|---|---|---|---|---|---|"]
     for r in results:
         if r["case"] == "memory":
             continue
         if "error" in r:
-            lines.append(f"| {r['case']} | {r['wall_s'] / 60:.1f} min | failed: {r['error']} "
-                         "| | | | |")
+            lines.append(f"| {r['case']} | {runs.index(r['command']) + 1} | "
+                         f"{r['wall_s'] / 60:.1f} min | failed: {r['error']} | | | | |")
             continue
         f = r["figures"].get("1024") or r["figures"][max(r["figures"], key=int)]
         spec = _fig(f, "radial spectrum")
@@ -147,7 +153,7 @@ def report(results: list[dict], args) -> str:
         verdicts = "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
                              if isinstance(v, dict))
         lines.append(f"| {r['case']}{' (--init ' + r['init'] + ')' if r['init'] else ''} | "
-                     f"{r['wall_s'] / 60:.1f} min | {spec['generated']:.4f} ({spec['noise']:.4f})"
+                     f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min | {spec['generated']:.4f} ({spec['noise']:.4f})"
                      f" | {target} | {rel(mind)} | {rel(l2)} | {verdicts} |")
     mem = next((r for r in results if r["case"] == "memory"), None)
     if mem:
@@ -167,10 +173,19 @@ def main() -> None:
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     fits = [c for c in args.cases if c != "memory"]
+    command = "python benchmarks/fit.py " + " ".join(sys.argv[1:])
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda c: run_fit(c, args.work, args.minutes), fits))
     if "memory" in args.cases:
         results.append(memory_case(args.work))
+    for r in results:
+        r["command"] = command
+    # the cases not run now keep their earlier rows (each row names the run it comes from)
+    stored = ROOT / "benchmarks" / "results" / "fit.json"
+    if stored.exists():
+        done = {r["case"] for r in results}
+        results = [r for r in json.loads(stored.read_text()) if r["case"] not in done] + results
+    results.sort(key=lambda r: list(CASES).index(r["case"]) if r["case"] in CASES else 99)
     out = ROOT / "benchmarks" / "results" / "fit.md"
     out.write_text(report(results, args))
     (ROOT / "benchmarks" / "results" / "fit.json").write_text(json.dumps(results, indent=1))

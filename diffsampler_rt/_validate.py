@@ -4,6 +4,10 @@ from __future__ import annotations
 import math
 import numbers
 
+import threading
+from contextlib import contextmanager
+from typing import Iterator
+
 import numpy as np
 
 MIN_POINTS = 16
@@ -67,6 +71,22 @@ def rng(seed: object) -> np.random.Generator:
     return np.random.default_rng(s)
 
 
+_TRUST = threading.local()
+
+
+@contextmanager
+def trusted() -> Iterator[None]:
+    """Within this block (in this thread) :func:`unit_points` trusts its input: the
+    runtime's generation path, whose points come from its own decoding and finishing steps,
+    checks them once at its edge instead of once per step."""
+    before = getattr(_TRUST, "on", False)
+    _TRUST.on = True
+    try:
+        yield
+    finally:
+        _TRUST.on = before
+
+
 def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or (sets, n, 2)",
                 min_n: int = 1) -> np.ndarray:
     """``points`` as a float64 array of one or more sets of 2-d points in [0, 1]^2.
@@ -77,7 +97,10 @@ def unit_points(points: object, *, name: str = "points", form: str = "(n, 2) or 
     names a wrong shape, the count of non-finite coordinates, or the range of coordinates
     outside the unit square: every finishing step and statistic here is defined on the unit
     square (or torus), where a NaN would otherwise pass through as silent garbage.
+    Inside :func:`trusted` it only converts.
     """
+    if getattr(_TRUST, "on", False):
+        return np.asarray(points, dtype=np.float64)
     try:
         pts = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError):

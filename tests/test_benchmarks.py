@@ -5,6 +5,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
+
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -17,6 +17,9 @@ from trainer.density import (FLOOR, choose_degree, choose_degree_across_sizes,
                              fit_density_log_legendre, refloor)
 from trainer.samplers.densities import ramp_unwarp
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 
 def random_table(bins: int, seed: int = 0) -> dict:
     rng = np.random.default_rng(seed)

@@ -17,6 +17,9 @@ from trainer.warm_start import net_from_onnx  # noqa: E402
 
 from .conftest import TINY_ONNX_UNET, TINY_UNET, recipe_stage, tiny_config  # noqa: E402
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 
 def tiny_distil(teacher, **changes) -> DistilConfig:
     """A distillation of a tiny teacher small enough for a test (a few seconds)."""

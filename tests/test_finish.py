@@ -284,3 +284,20 @@ def test_every_bundled_card_is_format_2_and_describes_its_steps():
         assert card["format_version"] == 2
         lines = describe(card["pipeline"])
         assert len(lines) == len(card["pipeline"]) and all("\n" not in t for t in lines)
+
+
+def test_generation_checks_points_once_and_steps_trust_them(monkeypatch):
+    import diffsampler_rt
+    from diffsampler_rt import _validate, spacing
+    seen = []
+    real = spacing.unit_points
+
+    def spy(*args, **kwargs):
+        seen.append(getattr(_validate._TRUST, "on", False))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(spacing, "unit_points", spy)
+    diffsampler_rt.generate("gbn_fast", 200, 2, seed=0)
+    assert seen and all(seen)  # inside the generation path: trusted
+    with pytest.raises(ValueError, match="non-finite"):  # called directly: checked
+        spacing.enforce_min_spacing(np.full((1, 16, 2), np.nan), 0.1)

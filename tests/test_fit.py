@@ -229,6 +229,7 @@ def _ddp_worker(rank: int, world: int, init: str, out: str) -> None:
     dist.destroy_process_group()
 
 
+@pytest.mark.slow
 def test_two_gloo_processes_hold_identical_weights_after_each_step(tmp_path):
     torch = pytest.importorskip("torch")
     import torch.multiprocessing as mp
@@ -265,3 +266,22 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
         assert figure in report
     assert (out / "mine.report.png").stat().st_size > 0
     assert not list(out.glob("*.partial*"))
+
+
+@pytest.mark.slow
+def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_path, capsys):
+    import shutil
+
+    import diffsampler_rt
+    from trainer.__main__ import main
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    np.save(tmp_path / "blue.npy", drawn("poisson_disk", 64, 32, 2))
+    assert main(["calibrate", str(path), str(tmp_path / "blue.npy")]) == 0
+    card = diffsampler_rt.Model(path).card
+    steps = [e["step"] for e in card["pipeline"]]
+    assert steps[0] == "thin" and card["pipeline"][0]["drop"] == "crowded"
+    assert "min_spacing" in steps and {c["step"] for c in card["calibration"]} >= {
+        "min_spacing", "even_out"}
+    assert "min_spacing" in capsys.readouterr().out
+    assert main(["calibrate", str(tmp_path / "nope.onnx"), str(tmp_path / "blue.npy")]) == 2

@@ -12,6 +12,9 @@ from trainer.unet import UNet  # noqa: E402
 
 from .conftest import tiny_config  # noqa: E402
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 
 def test_l2_star_torch_is_warnock_squared():
     pts = np.random.default_rng(0).random((3, 50, 2))

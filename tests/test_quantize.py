@@ -16,6 +16,9 @@ from trainer.distil import network_hash  # noqa: E402
 
 from .conftest import session_entry  # noqa: E402
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -14,6 +14,9 @@ from trainer.__main__ import main as trainer_main  # noqa: E402
 
 from .conftest import tiny_config  # noqa: E402
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

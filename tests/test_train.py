@@ -10,6 +10,9 @@ from trainer.train import Trainer, load_checkpoint, lr_at  # noqa: E402
 
 from .conftest import recipe_stage, tiny_config  # noqa: E402
 
+# minutes in all: run by the full suite, not by `pytest -m "not slow"`
+pytestmark = pytest.mark.slow
+
 
 def test_exact_resume_after_stop(tmp_path):
     cfg = tiny_config()

@@ -14,7 +14,10 @@
    size and their mean radial power below ``EVEN_CUT`` sqrt(n) compared with the held-in
    sets'. Where the ratio R is off by more than twice its standard error, ``even_out`` gets
    gain 1 - 1 / sqrt(R) at that size (the evening scales the deviations, so the power, by
-   (1 - gain)^2), clipped to [-0.9, 0.9]; sizes within noise get 0.
+   (1 - gain)^2 to first order), clipped to [-0.9, 0.9]; sizes within noise get 0. The
+   evening is linear only to first order, so the sets are made again with the gains and the
+   factor (1 - gain) corrected by the remaining ratio, up to ``EVEN_ROUNDS`` rounds or until
+   every size is within noise.
 
 Every choice is recorded with its figures in the card (``"calibration"``).
 """
@@ -33,8 +36,8 @@ BLUE_NOISE = 0.3
 SPACING_PERCENTILE = 5.0
 #: the large scales the evening calibration compares, in units of sqrt(n)
 EVEN_CUT = 0.5
-#: sets generated per size to calibrate the evening
-EVEN_SETS = 64
+#: sets generated per size to calibrate the evening, and the most rounds of it
+EVEN_SETS, EVEN_ROUNDS = 64, 3
 
 
 def _table(values: dict[int, float], digits: int = 4) -> Any:
@@ -82,22 +85,38 @@ def low_power(sets: np.ndarray, cut: float = EVEN_CUT) -> np.ndarray:
     return np.array(out)
 
 
-def evening(generate: Callable[[int, int], np.ndarray], held_in: dict[int, np.ndarray]
+def _ratio(generate, n: int, examples: np.ndarray) -> tuple[float, float]:
+    """(generated / example mean power below the cut, standard error of its log)."""
+    ex, gen = low_power(examples), low_power(generate(n, EVEN_SETS))
+    se = math.sqrt((gen.std(ddof=1) / gen.mean()) ** 2 / len(gen)
+                   + (ex.std(ddof=1) / ex.mean()) ** 2 / len(ex))
+    return float(gen.mean() / ex.mean()), se
+
+
+def evening(generate: Callable[[int, int], np.ndarray], held_in: dict[int, np.ndarray], *,
+            with_gains: Callable[[dict[int, float]], Callable] | None = None
             ) -> tuple[dict[int, float], dict[int, dict]]:
-    """The even_out gain per size (0 where the model is within noise) and the figures."""
-    gains, figures = {}, {}
-    for n, sets in held_in.items():
-        ex = low_power(sets[:256])
-        gen = low_power(generate(n, EVEN_SETS))
-        ratio = gen.mean() / ex.mean()
-        # standard error of log(ratio) from both samples' spread
-        se = math.sqrt((gen.std(ddof=1) / gen.mean()) ** 2 / len(gen)
-                       + (ex.std(ddof=1) / ex.mean()) ** 2 / len(ex))
-        off = abs(math.log(ratio)) > 2 * se
-        gain = float(np.clip(1 - 1 / math.sqrt(ratio), -0.9, 0.9)) if off else 0.0
-        gains[n] = gain
-        figures[n] = {"power_ratio": round(ratio, 4), "log_se": round(se, 4),
-                      "gain": round(gain, 3)}
+    """The even_out gain per size (0 where the model is within noise) and the figures.
+
+    ``with_gains(gains)`` returns a generator with those gains applied (for the later
+    rounds); without it, one round."""
+    gains, figures = {n: 0.0 for n in held_in}, {}
+    gen = generate
+    for round_ in range(EVEN_ROUNDS if with_gains else 1):
+        settled = True
+        for n, sets in held_in.items():
+            ratio, se = _ratio(gen, n, sets[:256])
+            off = abs(math.log(ratio)) > 2 * se
+            figures[n] = {"power_ratio": round(ratio, 4), "log_se": round(se, 4),
+                          "rounds": round_ + 1}
+            if off:
+                settled = False
+                keep = (1 - gains[n]) / math.sqrt(ratio)  # deviations kept, corrected
+                gains[n] = float(np.clip(1 - keep, -0.9, 0.9))
+            figures[n]["gain"] = round(gains[n], 3)
+        if settled or with_gains is None:
+            break
+        gen = with_gains(gains)
     return gains, figures
 
 
@@ -123,17 +142,30 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
     if uniform and entry is None:
-        model = diffsampler_rt.Model(model_path)
-        gains, figures = evening(lambda n, c: model.generate(n, c, seed=seed), held_in)
-        how = ("mean radial power below 0.5 sqrt(n), generated / held-in: "
-               + ", ".join(f"{f['power_ratio']:.3f} (+-{f['log_se']:.3f} in log) at n = {n}"
-                           for n, f in sorted(figures.items())))
-        if any(gains.values()):
+        thin_at = next(i for i, e in enumerate(pipeline) if e["step"] == "thin")
+
+        def with_even(gains: dict[int, float]) -> list[dict]:
             even = {"step": "even_out", "gain": _table(gains, 3), "cut": EVEN_CUT}
-            thin_at = next(i for i, e in enumerate(pipeline) if e["step"] == "thin")
-            pipeline = pipeline[:thin_at + 1] + [even] + pipeline[thin_at + 1:]
-            notes.append({"step": "even_out", "how": how + "; gain 1 - 1 / sqrt(ratio) where "
-                          "the ratio is off by more than twice its standard error"})
+            return pipeline[:thin_at + 1] + [even] + pipeline[thin_at + 1:]
+
+        def generator(pipe: list[dict]):
+            model = diffsampler_rt.Model(model_path)
+            model.card = {**model.card, "pipeline": pipe}
+            return lambda n, c: model.generate(n, c, seed=seed)
+
+        gains, figures = evening(generator(pipeline), held_in,
+                                 with_gains=lambda g: generator(with_even(g)))
+        how = ("mean radial power below 0.5 sqrt(n), generated / held-in, in the last of the "
+               "rounds: " + ", ".join(f"{f['power_ratio']:.3f} (+-{f['log_se']:.3f} in log, "
+                                      f"round {f['rounds']}) at n = {n}"
+                                      for n, f in sorted(figures.items())))
+        if any(gains.values()):
+            pipeline = with_even(gains)
+            notes.append({"step": "even_out", "how": how + "; gain per size "
+                          + ", ".join(f"{g:.3f}" for _, g in sorted(gains.items()))
+                          + ": the deviations kept, 1 - gain, divided by sqrt(ratio) each "
+                          "round where the ratio is off by more than twice its standard "
+                          f"error (at most {EVEN_ROUNDS} rounds)"})
         else:
             notes.append({"step": "even_out", "how": how + ": within noise, no evening"})
         log("calibration: " + notes[-1]["how"])
