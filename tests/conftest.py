@@ -130,3 +130,17 @@ def pipeline_card_error(model: str, pipeline: list, text: str) -> str:
         parse_card({CARD_KEY: json.dumps(card)}, "m")
     assert text in str(err.value), (text, str(err.value))
     return str(err.value)
+
+
+def pipeline_refused(path, argv, capsys, *texts) -> None:
+    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
+    text, and leaves the file as it was."""
+    from export.__main__ import main as export_main
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert export_main(["pipeline", str(path), *argv]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith("error: ") and err.count("\n") == 1 and not out
+    for text in texts:
+        assert text in err, (text, err)
+    assert path.read_bytes() == before

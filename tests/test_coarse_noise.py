@@ -15,7 +15,7 @@ from diffsampler_rt.coarse_noise import coarse_filter, gain_at, settings_problem
 from diffsampler_rt.spectrum import radial_spectrum
 from export.__main__ import main as export_main
 
-from .conftest import changed_pipeline_error
+from .conftest import changed_pipeline_error, pipeline_refused
 
 
 def test_only_the_coarse_modes_are_scaled():
@@ -100,19 +100,6 @@ def test_card_settings_are_validated(params, message):
         parse_card({CARD_KEY: json.dumps(old)}, "m")
 
 
-def _refused(path, argv, capsys, *texts):
-    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
-    text, and leaves the file as it was."""
-    before = path.read_bytes()
-    capsys.readouterr()
-    assert export_main(["pipeline", str(path), *argv]) == 2
-    out, err = capsys.readouterr()
-    assert err.startswith("error: ") and err.count("\n") == 1 and not out
-    for text in texts:
-        assert text in err, (text, err)
-    assert path.read_bytes() == before
-
-
 def _steps(model) -> list:
     return [e["step"] for e in model.card["pipeline"]]
 
@@ -156,7 +143,7 @@ def test_card_gain_is_applied(tmp_path, capsys):
                       "step 'coarse_noise': 'cut' must be a number in (0, 1]"),
                      (["--update", "coarse_noise", "--c", "0.5"],
                       "step 'coarse_noise' has no parameter 'c'")):
-        _refused(path, bad, capsys, err)
+        pipeline_refused(path, bad, capsys, err)
     assert export_main(["pipeline", str(path), "--remove", "coarse_noise"]) == 0
     assert "coarse_noise" not in _steps(diffsampler_rt.Model(path))
 
@@ -188,6 +175,7 @@ def test_docstring_examples():
     assert doctest.testmod(coarse_noise).failed == 0
 
 
+@pytest.mark.slow
 def test_the_bundled_ldbn_gain_brings_its_integration_error_to_the_samplers():
     """Without its card's gain the ldbn net's sets integrate Gaussians ~20 % better than LDBN's
     at n = 256 (fidelity report: a miss of fidelity); with it, within a few percent."""
@@ -262,7 +250,7 @@ def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, 
     cool = m.generate(256, 2, seed=3)
     assert not np.allclose(cool, before[256])
     np.testing.assert_array_equal(m.generate(256, 2, seed=3, structure=False), white)
-    _refused(path, ["--update", str(i), "--temperature", "x"], capsys,
+    pipeline_refused(path, ["--update", str(i), "--temperature", "x"], capsys,
              "step 'coarse_noise': 'temperature' must be a number in (0, 2], got 'x'")
-    _refused(path, ["--remove", "n_rooks"], capsys, "needs a structure step in the pipeline")
+    pipeline_refused(path, ["--remove", "n_rooks"], capsys, "needs a structure step in the pipeline")
     assert diffsampler_rt.Model(path).card["pipeline"][i]["temperature"] == 0.8

@@ -128,6 +128,7 @@ def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
     assert diffsampler_rt.Model(path).card["default_steps"] == 6  # the file as it was
 
 
+@pytest.mark.slow
 def test_reexport_with_attention_window(tiny_onnx, tmp_path):
     from export.reexport import reexport
     out, diffs = reexport(tiny_onnx, tmp_path / "w.onnx", attention_window=2,

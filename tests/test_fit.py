@@ -116,6 +116,7 @@ def thomas(count: int, n: int, seed: int) -> np.ndarray:
     return np.where(kids >= 1, 0, kids).reshape(count, n, 2)
 
 
+@pytest.mark.slow
 def test_analysis_finds_embedding_uniformity_and_structure():
     nets = analyse(read_examples([sample("sobol_owen", 256, count=24, seed=1)]))
     assert (nets.embedding, nets.uniform, nets.structure) == ("stratified", True, "dyadic_net")

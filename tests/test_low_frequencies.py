@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 import diffsampler_rt
+
+from .conftest import pipeline_refused
 from diffsampler_rt import ModelFormatError, low_frequencies
 from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.low_frequencies import even_out, gain_at, settings_problem
@@ -57,20 +59,6 @@ def test_card_cut_per_size():
         assert match in settings_problem(bad)
 
 
-def _refused(path, argv, capsys, *texts):
-    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
-    text, and leaves the file as it was."""
-    from export.__main__ import main as export_main
-    before = path.read_bytes()
-    capsys.readouterr()
-    assert export_main(["pipeline", str(path), *argv]) == 2
-    out, err = capsys.readouterr()
-    assert err.startswith("error: ") and err.count("\n") == 1 and not out
-    for text in texts:
-        assert text in err, (text, err)
-    assert path.read_bytes() == before
-
-
 def _entry(path, step: str) -> dict:
     return find(diffsampler_rt.load(path).card["pipeline"], step)
 
@@ -103,7 +91,7 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(bundled_copy, cap
     # structure=False leaves it out
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
                                   diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
-    _refused(path, ["--add", "even_out", "--cut", "0.5"], capsys, "step 'even_out' needs 'gain'")
+    pipeline_refused(path, ["--add", "even_out", "--cut", "0.5"], capsys, "step 'even_out' needs 'gain'")
     # a cut per size: the model uses the cut at its n
     assert export_main(["pipeline", str(path), "--update", "even_out", "--gain", "64:0,1024:0.3",
                         "--cut", "64:1,1024:0.5"]) == 0
@@ -113,11 +101,11 @@ def test_card_even_out_is_applied_validated_and_set_by_the_cli(bundled_copy, cap
     assert export_main(["pipeline", str(path), "--update", "even_out", "--gain", "0.3",
                         "--cut", "0.5"]) == 0
     np.testing.assert_array_equal(per_size, diffsampler_rt.generate(path, 1024, 1, seed=4))
-    _refused(path, ["--update", "even_out", "--cut", "0.5:x"], capsys,
+    pipeline_refused(path, ["--update", "even_out", "--cut", "0.5:x"], capsys,
              "step 'even_out': 'cut' must be", "0.5:x")
-    _refused(path, ["--update", "even_out", "--cut", "64:1,1024:3"], capsys,
+    pipeline_refused(path, ["--update", "even_out", "--cut", "64:1,1024:3"], capsys,
              "step 'even_out': 'cut' values must each be a number in (0, 2], got 3")
-    _refused(path, ["--update", "even_out", "--gain", "2"], capsys,
+    pipeline_refused(path, ["--update", "even_out", "--gain", "2"], capsys,
              "step 'even_out': 'gain' must be a number in [-0.9, 0.9]")
     assert _entry(path, "even_out") == {"cut": 0.5, "gain": 0.3}  # left as it was
     from diffsampler_rt.card import CARD_KEY, parse_card
@@ -151,7 +139,7 @@ def test_card_restore_cut_is_applied_validated_and_set_by_the_cli(bundled_copy, 
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 200, 2, seed=3, structure=False),
                                   unstructured)
     for bad in ("0", "2.5", "nan", "x"):
-        _refused(path, ["--update", "thin", "--restore-cut", bad], capsys,
+        pipeline_refused(path, ["--update", "thin", "--restore-cut", bad], capsys,
                  "step 'thin': 'restore_cut' must be a number in (0, 2]", bad)
     assert _entry(path, "thin")["restore_cut"] == 1.0  # left as it was
     from diffsampler_rt.card import CARD_KEY, parse_card

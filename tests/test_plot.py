@@ -8,6 +8,7 @@ from diffsampler_rt.cli import main  # noqa: E402
 from diffsampler_rt.plot import plot_sets  # noqa: E402
 
 
+@pytest.mark.slow
 def test_plot_from_a_model(tmp_path):
     out = tmp_path / "fig.png"
     assert main(["plot", "rank1", "64", "--count", "2", "--seed", "0", "-o", str(out)]) == 0

@@ -12,6 +12,8 @@ from diffsampler_rt import ModelFormatError, projections
 from diffsampler_rt.finish.pipeline import find
 from diffsampler_rt.projections import gain_at, settings_problem, spread_projections
 
+from .conftest import pipeline_refused
+
 
 def _deviations(pts: np.ndarray) -> np.ndarray:
     """Sorted coordinates minus (i + 1/2) / n, per set and axis."""
@@ -77,7 +79,7 @@ def test_coordinates_stay_in_the_square():
 
 
 @pytest.mark.parametrize("gain", [0.4, 1.6, float("nan"), True, "1.1", None])
-def test_bad_gain_is_refused(gain):
+def test_bad_gain_ispipeline_refused(gain):
     with pytest.raises(ValueError, match=r"gain must be a number in \[0.5, 1.5\], got "):
         spread_projections(_jittered(1, 4, 0), gain)
 
@@ -98,20 +100,6 @@ def test_card_table_validation_and_words():
     assert projections.describe(None) == "none"
     assert projections.describe(1.2) == "gain 1.2"
     assert projections.describe(spec) == "gain 1 / 1.1 / 1 at n = 64 / 256 / 576 (log-linear)"
-
-
-def _refused(path, argv, capsys, *texts):
-    """``python -m export pipeline PATH ARGV`` exits 2 with a one-line error holding every
-    text, and leaves the file as it was."""
-    from export.__main__ import main as export_main
-    before = path.read_bytes()
-    capsys.readouterr()
-    assert export_main(["pipeline", str(path), *argv]) == 2
-    out, err = capsys.readouterr()
-    assert err.startswith("error: ") and err.count("\n") == 1 and not out
-    for text in texts:
-        assert text in err, (text, err)
-    assert path.read_bytes() == before
 
 
 def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_copy, capsys):
@@ -139,9 +127,9 @@ def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_co
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
                                   diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
     for bad in ("2", "x", "64:1,256"):
-        _refused(path, ["--update", "projection_gain", "--gain", bad], capsys,
+        pipeline_refused(path, ["--update", "projection_gain", "--gain", bad], capsys,
                  "step 'projection_gain': 'gain' must be a number in [0.5, 1.5]", bad)
-    _refused(path, ["--update", "projection_gain", "--gain", "64:1,256:1.7"], capsys,
+    pipeline_refused(path, ["--update", "projection_gain", "--gain", "64:1,256:1.7"], capsys,
              "step 'projection_gain': 'gain' values must each be a number in [0.5, 1.5], got 1.7")
     from diffsampler_rt.card import CARD_KEY, parse_card
     card = copy.deepcopy(diffsampler_rt.load(path).card)

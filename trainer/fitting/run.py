@@ -220,28 +220,32 @@ def fit(examples: Sequence[Any] | Any, *, name: str, out: str | os.PathLike = ".
     model = out / f"{name}.onnx"
     _export(run_dir, model, ex, sp, analysis, init_path)
     held_in = {n: ex.take(n, sp.held_in[n][:1024]) for n in ex.sizes}
-    from .calibrate import calibrate
-    card = calibrate(model, held_in, analysis.structure, analysis.structure_sizes,
-                     uniform=analysis.uniform, seed=seed, log=log)
-    from .evaluate import report
-    md, png = report(model, ex, sp, analysis, out / f"{name}.report.md",
-                     extra=[f"Fit: {time.monotonic() - started:.0f} s in all, "
-                            f"{trainer.step} training steps."])
-    log(f"wrote {model}, {md}, {png}")
-    student = None
+    result = _calibrate_and_report(model, held_in, ex, sp, analysis, seed, log,
+                                   f"Fit: {time.monotonic() - started:.0f} s in all, "
+                                   f"{trainer.step} training steps.")
     if fast:
         from .fast import distil
         started = time.monotonic()
         path = distil(model, name, out, sides, minutes / 2, seed=seed, threads=threads,
                       device=device, progress=progress)
-        s_card = calibrate(path, held_in, analysis.structure, analysis.structure_sizes,
-                           uniform=analysis.uniform, seed=seed, log=log)
-        s_md, s_png = report(path, ex, sp, analysis, out / f"{name}_fast.report.md",
-                             extra=[f"Distilled from {model.name} in "
-                                    f"{time.monotonic() - started:.0f} s."])
-        log(f"wrote {path}, {s_md}, {s_png}")
-        student = FitResult(path, s_md, s_png, s_card)
-    return FitResult(model, md, png, card, student)
+        student = _calibrate_and_report(path, held_in, ex, sp, analysis, seed, log,
+                                        f"Distilled from {model.name} in "
+                                        f"{time.monotonic() - started:.0f} s.")
+        result = replace(result, fast=student)
+    return result
+
+
+def _calibrate_and_report(model: Path, held_in, ex, sp, analysis, seed: int, log,
+                          note: str) -> FitResult:
+    """A trained model's finishing steps from the held-in sets, then its report against the
+    held-out ones (``MODEL.report.md``, ``.png``, ``.json`` beside it)."""
+    from .calibrate import calibrate
+    from .evaluate import report
+    card = calibrate(model, held_in, analysis.structure, analysis.structure_sizes,
+                     uniform=analysis.uniform, seed=seed, log=log)
+    md, png = report(model, ex, sp, analysis, model.with_suffix(".report.md"), extra=[note])
+    log(f"wrote {model}, {md}, {png}")
+    return FitResult(model, md, png, card)
 
 
 def _load_or_make_config(run_dir: Path, name, analysis, sides, pools, batches, init, seed,
