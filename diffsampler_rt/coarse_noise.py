@@ -1,4 +1,5 @@
-"""A gain on the coarse scales of the solver's starting noise (card field ``"coarse_noise"``).
+"""A gain on the coarse scales of the solver's starting noise (the pipeline step
+``coarse_noise``, :mod:`diffsampler_rt.finish.coarse_noise`).
 
 A small net can make sets that are more even at large scales than its sampler's: the
 bundled ldbn's sets had about 25 % less power than the sampler's at the frequencies below
@@ -11,15 +12,17 @@ scales, where the net's pattern lives, nearly as they were. The starting noise s
 stationary Gaussian field on the k x k grid, no longer white; its mean (the zero
 frequency) is left alone. Each set is shaped on its own, so batching does not change it.
 
-Where the card imposes a structure, its ``"structure_temperature"`` T (a number in (0, 2])
-scales every other mode, the mean included, by T: the distilled ldbn_fast's sets, whose
+The step's ``"temperature"`` T (a number in (0, 2]; format 1's ``"structure_temperature"``,
+where the structure is imposed: an entry with ``"where": "structured"``) scales every other
+mode, the mean included, by T: the distilled ldbn_fast's sets, whose
 LDBN ripples the n-rooks projection damps, keep them better from a cooler start (spectrum
 MAE at n = 1024 0.019 -> 0.015; see :meth:`diffsampler_rt.Model.generate`).
 
-Card value: ``{"cut": C, "gain": G}``, or ``{"cut": C, "n": [sizes], "gain": [G per
-size]}``: linear in log n between the listed sizes, the end values beyond (like
-``"min_spacing"``). It is chosen by measurement against the reference sampler
-(``python -m export set-defaults MODEL --coarse-noise ...``).
+Step parameters: ``{"step": "coarse_noise", "gain": G, "cut": C}``, each a number or a
+per-size table ``{"n": [sizes], "values": [...]}``: linear in log n between the listed
+sizes, the end values beyond (the format-1 field ``{"cut": C, "n": [...], "gain": [...]}``
+is what :func:`shaping`, :func:`describe` and :func:`settings_problem` read). It is chosen by measurement against the reference sampler
+(``python -m export pipeline MODEL --add coarse_noise --gain ... --cut ...``).
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Autoguidance: steer a model's denoiser away from a weaker model of the same sampler
-(card field ``"guide"``).
+(the pipeline step ``guide``, :mod:`diffsampler_rt.finish.guide`).
 
 A small net blurs what it learned: its sets' radial spectrum has the sampler's peak, but
 lower and wider. Karras et al. 2024 ("Guiding a diffusion model with a bad version of
@@ -17,8 +17,10 @@ guided sets carry more low-frequency power (Gaussian integration error +35 % at 
 with the card's 8 sliced-OT iterations, +3 % with 32), so the card's polish is tuned with
 it.
 
-Card value: ``{"model": NAME, "weight": W}`` or ``{"model": NAME, "n": [sizes], "weight":
-[W per size]}`` (linear in log n between the sizes, the end values beyond), with an
+Step parameters: ``{"step": "guide", "model": NAME, "weight": W}``, W a number or a
+per-size table ``{"n": [sizes], "values": [...]}`` (linear in log n between the sizes, the
+end values beyond; the format-1 card field ``"guide"`` had ``"n"`` and ``"weight"`` lists,
+which :func:`settings_problem`, :func:`weight_at` and :func:`describe` read), with an
 optional ``"network_sha256"`` of the guide's network (its file less the metadata,
 :func:`diffsampler_rt.metadata.network_sha256`, so that editing the guide's own card does
 not orphan the models it guides): the weights were chosen against that network, and

@@ -13,11 +13,13 @@ Two uses:
 
 - :func:`restore_low_frequencies`: a set thinned from a bigger one
   (:mod:`diffsampler_rt.elimination`) gets the bigger set's large scales back (its holes'
-  power taken out), below RESTORE_CUT sqrt(n) or a card's ``"restore_cut"`` (GBN's nets,
-  whose sets are even up to their blue-noise peak, restore up to it, 1; sot / sot_fast 0.4);
-- :func:`even_out`: a card's ``"even_out"`` (``{"cut": C, "gain": G}`` or ``{"cut": C,
-  "n": [sizes], "gain": [G per size]}``, the cut possibly a list per size too; linear in
-  log n between the sizes, the end values beyond) shrinks a set's own density deviations
+  power taken out), below RESTORE_CUT sqrt(n) or a ``thin`` step's ``"restore_cut"`` (GBN's
+  nets, whose sets are even up to their blue-noise peak, restore up to it, 1; sot /
+  sot_fast 0.4; :mod:`diffsampler_rt.finish.thin`);
+- :func:`even_out`: the pipeline step ``{"step": "even_out", "gain": G, "cut": C}``
+  (:mod:`diffsampler_rt.finish.even_out`; G and C numbers or per-size tables, linear in
+  log n between the sizes, the end values beyond; :func:`describe` and
+  :func:`settings_problem` read the format-1 card field ``"even_out"``) shrinks a set's own density deviations
   by 1 - G, for nets whose sets are less even at large scales than their sampler's (G < 0
   amplifies them, for nets whose sets are more even).
 """

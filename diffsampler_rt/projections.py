@@ -11,10 +11,11 @@ more even. Each point moves along the axes only, by (gain - 1) times its own dev
 change little. Coordinates are taken in the unit square (a toroidal model's set as
 returned).
 
-The model card asks for it with ``"projection_gain": G`` or a per-size table
-``{"n": [sizes], "gain": [G per size]}`` (linear in log n between the sizes, the end values
-beyond); the runtime applies it after the evening-out and before the minimum spacing, and
-not where a structure is imposed (a structure fixes the projections itself).
+A model card's pipeline asks for it with the step ``{"step": "projection_gain", "gain": G}``
+(:mod:`diffsampler_rt.finish.projection_gain`; G a number or a per-size table, linear in
+log n between the sizes, the end values beyond), where the card lists it: sot_32_fast's
+after the evening-out and before the minimum spacing. A structure fixes the projections
+itself, so a card with one marks this step ``"where": "unstructured"``.
 """
 from __future__ import annotations
 

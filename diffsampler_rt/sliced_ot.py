@@ -11,10 +11,12 @@ values to that density's quantiles, and move every point by the mean of its 1-d
 displacements. The disk and the square are related by Shirley and Chiu's concentric map,
 which preserves area, so uniform stays uniform.
 
-A model card asks for it with ``"sliced_ot": {"directions": D, "iterations": K}``, or K per
-size: ``{"directions": D, "n": [256, 1024, 4096], "iterations": [0, 4, 16]}`` (linear in
-log n between the sizes, the end values beyond). An optional ``"step": s`` (0 < s <= 2,
-default 1: the sampler's own update) scales every move: the mean over evenly spread
+A model card's pipeline asks for it with the step ``{"step": "sliced_ot", "directions": D,
+"iterations": K}`` (:mod:`diffsampler_rt.finish.sliced_ot`), K possibly per size
+(``{"n": [256, 1024, 4096], "values": [0, 4, 16]}``, linear in log n between the sizes,
+rounded, the end values beyond). An optional ``"step_size": s`` (0 < s <= 2, default 1: the
+sampler's own update; ``"step"`` in a format-1 card's ``"sliced_ot"`` field, which
+:func:`iterations_at`, :func:`describe` and :func:`settings_problem` read) scales every move: the mean over evenly spread
 directions of a displacement's 1-d projections is half of it in 2-d, and the set's coarsest
 imbalances shrink by only a fraction per iteration, so an over-relaxed step (s > 1) takes
 them out in fewer iterations at the same cost.

@@ -8,13 +8,15 @@ closest pair. This module pushes apart, symmetrically along the line joining the
 pairs closer than r (and the neighbours a push brings too close); every other point keeps its
 coordinates bit for bit.
 
-The model card asks for it with ``"min_spacing": c`` (the coefficient of 1 / sqrt(n)): the
-Poisson disk sampler's own radius, or a low percentile of the smallest distance of the
-sampler's training sets (``python -m trainer spacing CONFIG`` measures it, ``python -m export
-set-defaults --min-spacing`` writes it). Where that coefficient drifts with n (SOT's smallest
-distance shrinks from ~0.71 / sqrt(n) at n = 64 to ~0.57 / sqrt(n) at 4096), the card can
-give one per trained size instead, ``"min_spacing": {"n": [64, 256, 1024], "c": [...]}``:
-linear in log n between them, the end values beyond. Distances are Euclidean in the unit
+A model card's pipeline asks for it with the step ``{"step": "min_spacing", "c": c}``
+(:mod:`diffsampler_rt.finish.min_spacing`; c the coefficient of 1 / sqrt(n)): the Poisson
+disk sampler's own radius, or a low percentile of the smallest distance of the sampler's
+sets (``python -m trainer spacing CONFIG`` or ``python -m trainer calibrate`` measures it).
+Where that coefficient drifts with n (SOT's smallest distance shrinks from ~0.71 / sqrt(n)
+at n = 64 to ~0.57 / sqrt(n) at 4096), c may be given per size, ``{"n": [64, 256, 1024],
+"values": [...]}``: linear in log n between them, the end values beyond. (:func:`coefficient`,
+:func:`describe` and :func:`radius` read the format-1 card field, ``"min_spacing": c`` or
+``{"n": [...], "c": [...]}``.) Distances are Euclidean in the unit
 square, as in the fidelity statistics; for a toroidal model (circular padding, sets on the
 torus) they are measured on the torus (``torus=True``), so pairs across the seam are kept
 apart too and a shifted or tiled set keeps its spacing.

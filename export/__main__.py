@@ -201,7 +201,8 @@ def export_main(argv: list[str]) -> int:
     return 0
 
 
-COMMANDS = {"set-defaults": set_defaults_main, "pipeline": pipeline_main, "migrate": migrate_main, "density-floor": density_floor_main,
+COMMANDS = {"set-defaults": set_defaults_main, "pipeline": pipeline_main,
+            "migrate": migrate_main, "density-floor": density_floor_main,
             "reexport": reexport_main, "quantize": quantize_main,
             "channels-last-pads": channels_last_pads_main}
 

@@ -97,7 +97,8 @@ def _spacing(args: argparse.Namespace) -> None:
         what = "mean" if args.mean else f"percentile {args.percentile:g}"
         print(f"{cfg.name}: k={k} ({len(pts)} sets) spacing coefficient {c:.4f} "
               f"({what} of the sets' smallest distance, times sqrt(n))")
-    print(f"{cfg.name}: per size: --min-spacing {','.join(table)}")
+    print(f"{cfg.name}: per size: python -m export pipeline MODEL.onnx --update min_spacing "
+          f"--c {','.join(table)}")
 
 
 def _run_options(parser: argparse.ArgumentParser, run_dir_help: str) -> None:
@@ -135,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="processes for the slow samplers (same pools for any number)")
 
     c = sub.add_parser("spacing", help="spacing coefficient of a config's training sets "
-                       "(for `python -m export set-defaults --min-spacing`)")
+                       "(for the min_spacing step: `python -m export pipeline`)")
     c.add_argument("config", type=Path)
     which = c.add_mutually_exclusive_group()
     which.add_argument("--percentile", type=float, default=5.0,
