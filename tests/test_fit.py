@@ -170,15 +170,21 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
         ("min_spacing", "unstructured")]
 
 
-def test_evening_gain_follows_the_power_ratio():
-    from trainer.fitting.calibrate import evening, low_power
+def test_evening_gain_is_the_one_whose_spectrum_comes_closest():
+    from diffsampler_rt.low_frequencies import even_out
+    from trainer.fitting.calibrate import EVEN_GAINS, evening
     examples = {64: drawn("poisson_disk", 64, 32, 2)}
-    same, _ = evening(lambda n, c: drawn("poisson_disk", n, 64, 7)[:c], examples)
-    assert same == {64: 0.0}  # within noise: no evening
-    white, figures = evening(lambda n, c: np.random.default_rng(1).random((c, n, 2)), examples)
-    ratio = figures[64]["power_ratio"]
-    assert ratio > 2 and white[64] == pytest.approx(min(0.9, 1 - 1 / np.sqrt(ratio)), abs=1e-3)
-    assert low_power(examples[64]).shape == (32,)
+    # sets whose spectrum does not depend on the gain: no evening
+    same, _ = evening(lambda gain: lambda n, c: drawn("poisson_disk", n, 64, 7)[:c], examples)
+    assert same == {64: 0.0}
+    # white noise evened towards blue noise: the gain that takes out most large-scale power
+    white = np.random.default_rng(1).random((64, 64, 2))
+    gains, figures = evening(
+        lambda gain: lambda n, c: even_out(white[:c], gain, cut=0.5) if gain else white[:c],
+        examples)
+    maes = figures[64]["mae"]
+    assert set(maes) == {f"{g:g}" for g in EVEN_GAINS}
+    assert gains[64] > 0 and maes[f"{gains[64]:g}"] == min(maes.values())
 
 
 # ---- training: resumption and data parallelism ---------------------------------------------

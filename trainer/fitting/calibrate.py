@@ -10,14 +10,12 @@
    the bundled blue-noise cards were made with). Sets whose c is at least ``BLUE_NOISE`` at
    every size are blue noise: the model gets ``min_spacing`` with c per size, and its
    thinning drops the most crowded points; other sets get neither (random thinning).
-3. **Large-scale evening**: the model's sets (with steps 1-2) are generated at each example
-   size and their mean radial power below ``EVEN_CUT`` sqrt(n) compared with the held-in
-   sets'. Where the ratio R is off by more than twice its standard error, ``even_out`` gets
-   gain 1 - 1 / sqrt(R) at that size (the evening scales the deviations, so the power, by
-   (1 - gain)^2 to first order), clipped to [-0.9, 0.9]; sizes within noise get 0. The
-   evening is linear only to first order, so the sets are made again with the gains and the
-   factor (1 - gain) corrected by the remaining ratio, up to ``EVEN_ROUNDS`` rounds or until
-   every size is within noise.
+3. **Large-scale evening**: the model's sets (with steps 1-2) are made at each example
+   size with the ``even_out`` gains of ``EVEN_GAINS`` (0: none), and each gain's mean radial
+   spectrum compared with the held-in sets' (mean absolute difference over every bin, so a
+   gain that evens the large scales but disturbs the pattern pays for it). A size gets the
+   gain with the smallest difference if it beats no evening by more than the difference's
+   noise (half that between two halves of the held-in sets), else none.
 
 Every choice is recorded with its figures in the card (``"calibration"``).
 """
@@ -36,8 +34,9 @@ BLUE_NOISE = 0.3
 SPACING_PERCENTILE = 5.0
 #: the large scales the evening calibration compares, in units of sqrt(n)
 EVEN_CUT = 0.5
-#: sets generated per size to calibrate the evening, and the most rounds of it
-EVEN_SETS, EVEN_ROUNDS = 64, 3
+#: sets generated per size to calibrate the evening, and the gains it tries
+EVEN_SETS = 64
+EVEN_GAINS = (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 0.9)
 
 
 def _table(values: dict[int, float], digits: int = 4) -> Any:
@@ -76,47 +75,29 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
             {**spaced, "where": "unstructured"}]
 
 
-def low_power(sets: np.ndarray, cut: float = EVEN_CUT) -> np.ndarray:
-    """Per set: its mean radial power below cut sqrt(n)."""
-    out = []
-    for s in sets:
-        f, p = radial_spectrum(s[None])
-        out.append(p[f < cut].mean())
-    return np.array(out)
-
-
-def _ratio(generate, n: int, examples: np.ndarray) -> tuple[float, float]:
-    """(generated / example mean power below the cut, standard error of its log)."""
-    ex, gen = low_power(examples), low_power(generate(n, EVEN_SETS))
-    se = math.sqrt((gen.std(ddof=1) / gen.mean()) ** 2 / len(gen)
-                   + (ex.std(ddof=1) / ex.mean()) ** 2 / len(ex))
-    return float(gen.mean() / ex.mean()), se
-
-
-def evening(generate: Callable[[int, int], np.ndarray], held_in: dict[int, np.ndarray], *,
-            with_gains: Callable[[dict[int, float]], Callable] | None = None
-            ) -> tuple[dict[int, float], dict[int, dict]]:
-    """The even_out gain per size (0 where the model is within noise) and the figures.
-
-    ``with_gains(gains)`` returns a generator with those gains applied (for the later
-    rounds); without it, one round."""
-    gains, figures = {n: 0.0 for n in held_in}, {}
-    gen = generate
-    for round_ in range(EVEN_ROUNDS if with_gains else 1):
-        settled = True
-        for n, sets in held_in.items():
-            ratio, se = _ratio(gen, n, sets[:256])
-            off = abs(math.log(ratio)) > 2 * se
-            figures[n] = {"power_ratio": round(ratio, 4), "log_se": round(se, 4),
-                          "rounds": round_ + 1}
-            if off:
-                settled = False
-                keep = (1 - gains[n]) / math.sqrt(ratio)  # deviations kept, corrected
-                gains[n] = float(np.clip(1 - keep, -0.9, 0.9))
-            figures[n]["gain"] = round(gains[n], 3)
-        if settled or with_gains is None:
-            break
-        gen = with_gains(gains)
+def evening(generate: Callable[[float], Callable[[int, int], np.ndarray]],
+            held_in: dict[int, np.ndarray]) -> tuple[dict[int, float], dict[int, dict]]:
+    """The even_out gain per size (0 where no gain beats none by more than the noise) and
+    the figures; ``generate(gain)`` makes sets (n, count) with that gain at every size."""
+    from diffsampler_rt.spectrum import spectrum_mae
+    targets = {}
+    for n, sets in held_in.items():
+        half = len(sets) // 2
+        targets[n] = (radial_spectrum(sets)[1],
+                      spectrum_mae(radial_spectrum(sets[:half])[1],
+                                   radial_spectrum(sets[half:])[1]) / 2)
+    maes: dict[int, dict[float, float]] = {n: {} for n in held_in}
+    for gain in EVEN_GAINS:
+        make = generate(gain)
+        for n in held_in:
+            maes[n][gain] = spectrum_mae(radial_spectrum(make(n, EVEN_SETS))[1], targets[n][0])
+    gains, figures = {}, {}
+    for n in held_in:
+        best = min(maes[n], key=maes[n].get)
+        noise = targets[n][1]
+        gains[n] = best if maes[n][0.0] - maes[n][best] > noise else 0.0
+        figures[n] = {"mae": {f"{g:g}": round(v, 5) for g, v in maes[n].items()},
+                      "noise": round(noise, 5), "gain": gains[n]}
     return gains, figures
 
 
@@ -144,30 +125,28 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     if uniform and entry is None:
         thin_at = next(i for i, e in enumerate(pipeline) if e["step"] == "thin")
 
-        def with_even(gains: dict[int, float]) -> list[dict]:
-            even = {"step": "even_out", "gain": _table(gains, 3), "cut": EVEN_CUT}
+        def with_even(gain: Any) -> list[dict]:
+            even = {"step": "even_out", "gain": gain, "cut": EVEN_CUT}
             return pipeline[:thin_at + 1] + [even] + pipeline[thin_at + 1:]
 
-        def generator(pipe: list[dict]):
+        def generator(gain: float):
             model = diffsampler_rt.Model(model_path)
-            model.card = {**model.card, "pipeline": pipe}
+            model.card = {**model.card, "pipeline": with_even(gain)}
             return lambda n, c: model.generate(n, c, seed=seed)
 
-        gains, figures = evening(generator(pipeline), held_in,
-                                 with_gains=lambda g: generator(with_even(g)))
-        how = ("mean radial power below 0.5 sqrt(n), generated / held-in, in the last of the "
-               "rounds: " + ", ".join(f"{f['power_ratio']:.3f} (+-{f['log_se']:.3f} in log, "
-                                      f"round {f['rounds']}) at n = {n}"
-                                      for n, f in sorted(figures.items())))
+        gains, figures = evening(generator, held_in)
+        how = ("radial spectrum, mean absolute difference from the held-in sets' with even_out "
+               f"gains {', '.join(f'{g:g}' for g in EVEN_GAINS)}: " + "; ".join(
+                   f"at n = {n}: " + ", ".join(f"{v:.4f}" for v in f["mae"].values())
+                   + f" (noise {f['noise']:.4f}) -> {f['gain']:g}"
+                   for n, f in sorted(figures.items())))
         if any(gains.values()):
-            pipeline = with_even(gains)
-            notes.append({"step": "even_out", "how": how + "; gain per size "
-                          + ", ".join(f"{g:.3f}" for _, g in sorted(gains.items()))
-                          + ": the deviations kept, 1 - gain, divided by sqrt(ratio) each "
-                          "round where the ratio is off by more than twice its standard "
-                          f"error (at most {EVEN_ROUNDS} rounds)"})
+            pipeline = with_even(_table(gains, 3))
+            notes.append({"step": "even_out", "how": how + "; the gain with the smallest "
+                          "difference where it beats none by more than the noise"})
         else:
-            notes.append({"step": "even_out", "how": how + ": within noise, no evening"})
+            notes.append({"step": "even_out", "how": how + ": no gain beats none by more "
+                          "than the noise, no evening"})
         log("calibration: " + notes[-1]["how"])
         _write(model_path, pipeline, notes)
     return diffsampler_rt.Model(model_path).card
