@@ -70,6 +70,7 @@ def run_fit(case: str, work: Path, minutes: float) -> dict:
     if init:
         cmd += ["--init", init]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    resumed = (out / f"{case}.run" / "checkpoint.pt").exists()  # a finished run: the rest only
     t = time.monotonic()
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
     wall = time.monotonic() - t
@@ -82,8 +83,10 @@ def run_fit(case: str, work: Path, minutes: float) -> dict:
     keep.mkdir(parents=True, exist_ok=True)
     for suffix in (".report.md", ".report.png"):
         shutil.copy(out / f"{case}{suffix}", keep / f"{case}{suffix}")
+    trained = next((line for line in proc.stdout.splitlines() if line.startswith("trained")),
+                   "")
     return {"case": case, "sampler": sampler, "init": init, "target": target,
-            "wall_s": wall, "figures": figures}
+            "wall_s": wall, "figures": figures, "resumed": resumed, "trained": trained}
 
 
 def memory_case(work: Path) -> dict:
@@ -153,7 +156,8 @@ def report(results: list[dict], args) -> str:
         verdicts = "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
                              if isinstance(v, dict))
         lines.append(f"| {r['case']}{' (--init ' + r['init'] + ')' if r['init'] else ''} | "
-                     f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min | {spec['generated']:.4f} ({spec['noise']:.4f})"
+                     f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min"
+                     f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {spec['generated']:.4f} ({spec['noise']:.4f})"
                      f" | {target} | {rel(mind)} | {rel(l2)} | {verdicts} |")
     mem = next((r for r in results if r["case"] == "memory"), None)
     if mem:

@@ -67,7 +67,12 @@ def _config(name: str, analysis, sides: list[int], pools: dict[int, np.ndarray],
                       pool_sizes=tuple(len(pools[k]) for k in sides),
                       symmetries=tuple(analysis.symmetries),
                       shifts=4 if analysis.toroidal else 1)
-    unet = UNetConfig(**NETS[net], padding="circular" if analysis.toroidal else "zeros")
+    padding = "circular" if analysis.toroidal else "zeros"
+    if init:  # the model it starts from decides the architecture (any bundled one)
+        from ..warm_start import net_from_onnx
+        unet = replace(net_from_onnx(Path(init))[1].unet, padding=padding)
+    else:
+        unet = UNetConfig(**NETS[net], padding=padding)
     return TrainConfig(name=name, data=data, unet=unet, steps=steps,
                        lr=2.5e-4 if init else 5e-4, warmup_steps=min(100, steps // 10),
                        seed=seed, threads=threads, checkpoint_every_s=60.0,
@@ -160,7 +165,8 @@ def fit(examples: Sequence[Any] | Any, *, name: str, out: str | os.PathLike = ".
     if net not in NETS:
         raise ValueError(f"net must be one of {list(NETS)}, got {net!r}")
     if init is not None and net != "standard":
-        raise ValueError("init needs net='standard' (the bundled models' architecture)")
+        raise ValueError("init takes the architecture of the model it starts from; leave "
+                         "net at 'standard'")
     bad = [g for g in symmetries if g not in range(8)]
     if bad:
         raise ValueError(f"symmetries must be integers 0-7 (the symmetries of the square), "
