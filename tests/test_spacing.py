@@ -304,14 +304,16 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
     want = [spacing_coefficient(sample("sobol_owen", k * k, count=12, seed=rng), 50)
             for k in (4, 8)]
     assert out[0].startswith("tiny: k=4 (12 sets) spacing coefficient")
-    assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
+    assert out[2] == ("tiny: per size: python -m export pipeline MODEL.onnx --update min_spacing "
+                      f"--c 16:{want[0]:.4f},64:{want[1]:.4f}")
     assert main(["spacing", str(fresh), "--fresh-sets", "12", "--mean"]) == 0
     out = capsys.readouterr().out.splitlines()
     rng = np.random.default_rng(cfg.seed)
     want = [spacing_coefficient(sample("sobol_owen", k * k, count=12, seed=rng), mean=True)
             for k in (4, 8)]
     assert "(mean of the sets' smallest distance, times sqrt(n))" in out[0]
-    assert out[2] == f"tiny: per size: --min-spacing 16:{want[0]:.4f},64:{want[1]:.4f}"
+    assert out[2] == ("tiny: per size: python -m export pipeline MODEL.onnx --update min_spacing "
+                      f"--c 16:{want[0]:.4f},64:{want[1]:.4f}")
     with pytest.raises(SystemExit):  # one or the other
         main(["spacing", str(fresh), "--mean", "--percentile", "50"])
     capsys.readouterr()
@@ -322,7 +324,8 @@ def test_trainer_spacing_command(tmp_path, monkeypatch, capsys):
     assert main(["spacing", str(pooled), "--percentile", "50"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert [line.split(":")[1].split()[0] for line in out[:2]] == ["k=4", "k=8"]
-    assert out[2].startswith("tiny: per size: --min-spacing 16:")
+    assert out[2].startswith("tiny: per size: python -m export pipeline MODEL.onnx --update "
+                             "min_spacing --c 16:")
     from trainer.data import make_pool
     from diffsampler_rt.grid import decode
     pts = decode(make_pool("sobol_owen", "stratified", 8, 10, cfg.seed), stratified=True)
