@@ -159,6 +159,10 @@ def report(results: list[dict], args) -> str:
                      f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min"
                      f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {spec['generated']:.4f} ({spec['noise']:.4f})"
                      f" | {target} | {rel(mind)} | {rel(l2)} | {verdicts} |")
+    missing = [c for c in list(CASES) + ["memory"] if c not in {r["case"] for r in results}]
+    if missing:
+        lines += ["", "Cases of this script without a row here (not run yet, or whose run failed "
+                  "on a bug fixed since and was not repeated): " + ", ".join(missing) + "."]
     mem = next((r for r in results if r["case"] == "memory"), None)
     if mem:
         lines += ["", f"Memory: reading, analysing, splitting and embedding the training pool "

@@ -205,17 +205,20 @@ def fit(examples: Sequence[Any] | Any, *, name: str, out: str | os.PathLike = ".
              for k in sides}
     batches = ExampleBatches(pools, {k: batch_size(k) for k in sides}, 2.0,
                              tuple(analysis.symmetries), density=density)
+    from ..train import Trainer
     if not rank:  # the first process sizes the run; the others read its config
-        cfg = _load_or_make_config(run_dir, name, analysis, sides, pools, batches,
-                                   init_path, seed, threads, minutes, density, device, net)
+        cfg, fresh = _load_or_make_config(run_dir, name, analysis, sides, pools, batches,
+                                          init_path, seed, threads, minutes, density,
+                                          device, net)
+        trainer = Trainer(cfg, run_dir, progress=progress, device=device, batches=batches)
+        if fresh:  # kept only once the trainer took it (a bad --init leaves no config)
+            _save_config(run_dir, cfg)
     _barrier(world)
     if rank:
         from ..config import TrainConfig
         cfg = TrainConfig.load(run_dir / "fit_config.json")
-    from ..train import Trainer
-    own_dir = run_dir if not rank else run_dir / f"rank{rank}"
-    trainer = Trainer(cfg, own_dir, progress=progress and not rank, device=device,
-                      batches=batches)
+        trainer = Trainer(cfg, run_dir / f"rank{rank}", progress=False, device=device,
+                          batches=batches)
     # data-parallel processes must take the same number of steps: no wall-clock stop there
     trainer.run(max_seconds=None if world > 1 else max(1.0, 60 * minutes - trainer.elapsed))
     log(f"trained {trainer.step} of {cfg.steps} steps in {trainer.elapsed / 60:.1f} min"
@@ -256,22 +259,24 @@ def _calibrate_and_report(model: Path, held_in, ex, sp, analysis, seed: int, log
 
 def _load_or_make_config(run_dir: Path, name, analysis, sides, pools, batches, init, seed,
                          threads, minutes, density, device, net):
-    """The run's config: read back on a restart (so that it resumes exactly), else made
-    with as many steps as the budget allows."""
+    """(the run's config, whether it is new): read back on a restart (so that it resumes
+    exactly), else made with as many steps as the budget allows."""
     from ..config import TrainConfig
     saved = run_dir / "fit_config.json"
     if saved.exists():
-        return TrainConfig.load(saved)
+        return TrainConfig.load(saved), False
     draft = _config(name, analysis, sides, pools, init=init, seed=seed, threads=threads,
                     steps=10**6, density=density, net=net)
-    steps = _steps_for(draft, batches, 60 * minutes, device)  # a data-parallel run: each
-    # process times its own steps alike, and the all-reduce adds a little
-    cfg = replace(draft, steps=steps, warmup_steps=min(100, steps // 10))
+    steps = _steps_for(draft, batches, 60 * minutes, device)
+    return replace(draft, steps=steps, warmup_steps=min(100, steps // 10)), True
+
+
+def _save_config(run_dir: Path, cfg) -> None:
+    saved = run_dir / "fit_config.json"
     run_dir.mkdir(parents=True, exist_ok=True)
     tmp = saved.with_suffix(".tmp")
     tmp.write_text(json.dumps(cfg.to_dict(), indent=1))
     os.replace(tmp, saved)
-    return cfg
 
 
 def _export(run_dir: Path, model: Path, ex, sp, analysis, init: str | None) -> None:
