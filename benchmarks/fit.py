@@ -167,8 +167,10 @@ def report(results: list[dict], args) -> str:
     if mem:
         lines += ["", f"Memory: reading, analysing, splitting and embedding the training pool "
                   f"of 100 000 sets of 1024 points from one {mem['file_gib']:.1f} GiB .npy file "
-                  f"peaked at {mem['peak_gib']:.2f} GiB resident ({mem['seconds']:.0f} s); the "
-                  "file is memory-mapped and read a chunk at a time."]
+                  f"peaked at {mem['peak_gib']:.2f} GiB resident ({mem['seconds']:.0f} s; the sets are "
+                  "jittered grids, so stratified: no optimal-transport assignment to pay). The "
+                  "file is memory-mapped and read a chunk at a time; the resident figure "
+                  "counts the mapped file's pages read, which the system may reclaim."]
     return "\n".join(lines) + "\n"
 
 
