@@ -154,6 +154,11 @@ class Step:
     #: still run (as :meth:`plain` says) when the caller asks for the network's own sets
     #: (``structure=False``): only thinning, which every non-square n needs
     essential: bool = False
+    #: acts only through the pipeline's structure step (which must exist and project)
+    needs_structure: bool = False
+    #: runs work of its own between the network's runs on the same cores (a polish, a
+    #: guide's network): the model's onnxruntime session must not spin then
+    shares_cores: bool = False
 
     # --- parameters
     def problem(self, params: Mapping[str, Any]) -> str | None:

@@ -61,10 +61,10 @@ def pipeline_problem(pipeline: Any) -> str | None:
     if len(structures) > 1:
         return f"a pipeline holds at most one structure step, got {structures}"
     for i, e in enumerate(pipeline):
-        needs = "where" in e or getattr(STEPS[e["step"]], "needs_structure", False)
-        if needs and not structures:
+        steers = STEPS[e["step"]].needs_structure
+        if ("where" in e or steers) and not structures:
             return f"pipeline entry {i} ({e['step']!r}) needs a structure step in the pipeline"
-        if needs and getattr(STEPS[e["step"]], "needs_structure", False):
+        if steers:
             step = STEPS[structures[0]]
             if type(step).project is Step.project:
                 return (f"pipeline entry {i} ({e['step']!r}) cannot steer towards "
@@ -90,7 +90,7 @@ def describe(pipeline: Sequence[Entry]) -> list[str]:
 def shares_cores(pipeline: Sequence[Entry]) -> bool:
     """Whether any step runs work of its own between the network's runs on the same cores
     (a sliced-OT polish, a guide's network): the model's session must not spin then."""
-    return any(getattr(STEPS[e["step"]], "shares_cores", False) for e in pipeline)
+    return any(STEPS[e["step"]].shares_cores for e in pipeline)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,6 @@ import hashlib
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -133,7 +132,3 @@ def batch_size(k: int) -> int:
 def training_sides(sizes: list[int], most: int = 3) -> list[int]:
     """The grid sides trained on: the example sizes' (the largest ``most`` of them)."""
     return sorted(math.isqrt(n) for n in sizes)[-most:]
-
-
-def cache_path() -> Path:
-    return cache_dir() / "fit"

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+from .analysis import describe
 from .report import compare, write_report
 
 #: generated sets per size (the held-out side has what the split kept, up to 512)
@@ -45,9 +46,7 @@ def report(model_path: Path, ex, sp, analysis, md: Path, *, seed: int = 12345,
                   f"{i}. {line}" for i, line in enumerate(_describe(model.card))) + ".", "",
               "How each finishing step was chosen: " + " ".join(
                   f"`{c['step']}`: {c['how']}." for c in model.card.get("calibration", [])),
-              "", "Analysis of the examples: " + "; ".join(
-                  __import__("trainer.fitting.analysis", fromlist=["describe"]).describe(analysis))
-              + "."] + (["", *extra] if extra else [])
+              "", "Analysis of the examples: " + "; ".join(describe(analysis)) + "."] + (["", *extra] if extra else [])
     png = md.with_suffix("").with_suffix(".report.png")
     write_report(md, png, f"{model.name}: generated sets against held-out examples", header,
                  rows)

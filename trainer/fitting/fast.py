@@ -2,6 +2,7 @@
 ``_fast`` models were made, :mod:`trainer.distil`), within a time budget of its own."""
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import time
@@ -46,7 +47,7 @@ def distil(teacher: Path, name: str, out: Path, sides: list[int], minutes: float
         cfg = replace(cfg, steps=max(20, int(0.95 * left / per_step)))
         run_dir.mkdir(parents=True, exist_ok=True)
         tmp_path = saved.with_suffix(".tmp")
-        tmp_path.write_text(__import__("json").dumps(cfg.to_dict(), indent=1))
+        tmp_path.write_text(json.dumps(cfg.to_dict(), indent=1))
         os.replace(tmp_path, saved)
     student = Distiller(cfg, run_dir, progress=progress, device=device)
     student.run()
