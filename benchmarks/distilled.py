@@ -24,6 +24,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
@@ -33,7 +35,7 @@ from trainer.stats import min_distance, radial_spectrum, spectrum_mae  # noqa: E
 
 
 def students() -> list[str]:
-    return [m for m in diffsampler_rt.list_models()
+    return [m for m in zoo.networks()
             if diffsampler_rt.load(m).card.get("distillation")]
 
 

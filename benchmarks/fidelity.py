@@ -43,6 +43,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import describe_devices  # noqa: E402
@@ -733,8 +735,7 @@ def _stale_note(r: dict) -> list[str]:
     return ["", f"**Not reproduced by the current runtime** at n = {', '.join(map(str, bad))} "
             f"(checked on {', '.join(sorted(set(bad.values())))}): the runtime has changed "
             "since these rows were measured, and the model file's sets with it, so their "
-            "figures are those of the earlier runtime's sets (docs/models.md says what changed "
-            "and how far it moved them)."]
+            "figures are those of the earlier runtime's sets (rerun the model's rows)."]
 
 
 def _stored_note(r: dict) -> list[str]:
@@ -959,7 +960,7 @@ def main() -> None:
     check_pool_options(p, a)
     if not a.sizes and not (a.merge or a.report_only):
         p.error("--sizes: no size given (with --merge: keep every row the file reproduces)")
-    bundled = diffsampler_rt.list_models()
+    bundled = zoo.networks()
     if a.check_kept:
         for m in a.models or bundled:
             bad = check_kept(m, a.out)

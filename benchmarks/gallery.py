@@ -22,6 +22,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.common import cache_dir  # noqa: E402
@@ -54,7 +56,7 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    models = a.models or diffsampler_rt.list_models()
+    models = a.models or zoo.networks()
     fig, axes = plt.subplots(len(models), 5, figsize=(17, 3.5 * len(models)), squeeze=False)
     fmax = int(2.5 * np.sqrt(a.n))
     for row, name in zip(axes, models):

@@ -28,6 +28,8 @@ import onnxruntime as ort
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 from diffsampler_rt.model import resolve, session_options  # noqa: E402
 from diffsampler_rt.shards import Shards, usable_cores  # noqa: E402

@@ -35,6 +35,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.common import FLOAT_DIR, cpu_description, float_source  # noqa: E402
@@ -50,7 +52,7 @@ LABELS = {"ot_energy": "OT energy", "l2_star": "L2*", "gauss_mse": "Gauss MSE",
 
 def quantised() -> list[str]:
     """Bundled models whose card says their convolutions are 8-bit."""
-    return [m for m in diffsampler_rt.list_models()
+    return [m for m in zoo.networks()
             if diffsampler_rt.load(m).card.get("weights") == "int8"]
 
 

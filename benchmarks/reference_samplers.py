@@ -22,6 +22,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 from benchmarks.common import SEED_COLUMNS as COLUMNS, SEED_CSV, cached_sets, generate  # noqa: E402
 from trainer.stats import radial_spectrum, spectrum_mae, stratified_projections  # noqa: E402

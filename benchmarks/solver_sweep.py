@@ -25,6 +25,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from trainer import zoo  # noqa: E402
+zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
 from benchmarks.fidelity import (STATS, TOL_MEAN, TOL_MIND, reference,  # noqa: E402
@@ -130,7 +132,7 @@ def main() -> None:
     p.add_argument("--append", action="store_true",
                    help="add this run's sections to --out instead of replacing it")
     a = p.parse_args()
-    models = a.models or diffsampler_rt.list_models()
+    models = a.models or zoo.networks()
     command = ("`python benchmarks/solver_sweep.py " + " ".join(sys.argv[1:]) + "` on "
                f"{dt.date.today().isoformat()} ({os.cpu_count()} cores)")
     if a.append and a.out.exists():

@@ -146,9 +146,10 @@ def measure(a, kept: dict | None = None) -> dict:
     of a slow reference at the run's first size, so one known to take many minutes there is
     not started just to be stopped."""
     sys.path.insert(0, str(ROOT))
-    import diffsampler_rt
     from benchmarks.common import cpu_description
-    models = a.models or diffsampler_rt.list_models()
+    from trainer import zoo
+    zoo.use()  # model names are the repository's networks (models/), in the children too
+    models = a.models or zoo.networks()
     cpu = cpu_description()
     results: dict = {}
     for name in models:

@@ -165,22 +165,25 @@ def _cmd_plot(args: argparse.Namespace) -> None:
 
 
 def _cmd_list(args: argparse.Namespace) -> None:
-    from .finish.pipeline import find
-    from .model import MODELS_DIR, bundled_models, load
-    names = bundled_models()
-    width = max(map(len, names), default=0)  # the name column fits the longest name
-    for name in names:
-        card = load(name).card
-        size = (MODELS_DIR / f"{name}.onnx").stat().st_size / 2**20
-        distilled = card.get("distillation")
-        origin = f", distilled from {distilled['teacher']}" if distilled else ""
-        origin += ", 8-bit convolutions" if card.get("weights") == "int8" else ""
-        origin += ", toroidal sets" if card.get("padding") == "circular" else ""
-        guide = find(card["pipeline"], "guide")
-        origin += f", guided by {guide['model']}" if guide else ""
-        print(f"{name:<{width}} sampler={card['sampler']:<12} embedding={card['embedding']:<10} "
-              f"trained n={card['trained_sizes']} {card['default_solver']} {card['default_steps']} steps "
-              f"({size:.1f} MiB{origin})")
+    from .model import MODELS_DIR, catalogue, listed_models, load
+    cat = catalogue()
+    rows = []
+    for name, path in listed_models().items():
+        entry = cat.get(name) if path.parent == MODELS_DIR else None
+        if entry is None:  # a model of a DIFFSAMPLER_MODELS folder: its card only
+            card = load(path).card
+            entry = {"imitates": f"{card['sampler']} ({path.parent})", "network": card["name"],
+                     "solver": card["default_solver"], "steps": card["default_steps"]}
+        ms = entry.get("ms_per_set_1024")
+        rows.append((name, entry["imitates"], f"network {entry['network']}",
+                     f"{entry['solver']} {entry['steps']} steps",
+                     f"{ms:g} ms a 1024-point set" if ms is not None else "not timed"))
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    for row in rows:
+        print("  ".join(f"{c:<{w}}" for c, w in zip(row, widths)) + "  " + row[4])
+    cpus = {e["speed_cpu"] for e in cat.values() if e.get("speed_cpu")}
+    if cpus:
+        print(f"(times: batched, from the speed report, on {'; '.join(sorted(cpus))})")
 
 
 def _cmd_info(args: argparse.Namespace) -> None:

@@ -26,8 +26,9 @@ optional ``"network_sha256"`` of the guide's network (its file less the metadata
 not orphan the models it guides): the weights were chosen against that network, and
 another one is refused. Cards written before it may carry ``"sha256"``, the digest of the
 guide's whole file, which is checked as such. NAME is an ``.onnx`` file next to the
-model's own, else a bundled model, else a bundled guide (``models/guides/``; ``sot_32`` is guided by
-``sot_32_guide``, a half-width net trained briefly on its 32 sets); the guide must have
+model's own or in a ``guides/`` folder beside it, else a bundled model (the repository's
+``sot_32`` is guided by ``models/guides/sot_32_guide.onnx``, a half-width net trained briefly
+on its 32 sets); the guide must have
 the model's noise schedule, embedding, offset scale, prediction and padding.
 """
 from __future__ import annotations
@@ -101,17 +102,20 @@ def describe(spec: dict | None) -> str:
 
 
 def guide_path(spec: dict, model_path: Path, bundled_dir: Path) -> Path:
-    """The guide's file: ``NAME.onnx`` next to the model, else a bundled model, else a
-    bundled guide (``bundled_dir/guides``: networks shipped only to guide others, so not
-    listed as models); its digest checked where the card gives one."""
+    """The guide's file: ``NAME.onnx`` next to the model or in its ``guides/`` folder
+    (networks kept only to guide others), else where a bare model name is found (the
+    ``DIFFSAMPLER_MODELS`` folders, then the bundled models); its digest checked where the
+    card gives one."""
+    from .model import search_path  # the model module loads guides: imported on use
     name = spec["model"]
-    for folder in (model_path.parent, bundled_dir, bundled_dir / "guides"):
+    for folder in (model_path.parent, model_path.parent / "guides", *search_path(),
+                   bundled_dir):
         path = folder / f"{name}.onnx"
         if path.is_file():
             break
     else:
         raise ModelFormatError(f"{model_path}: its guide model {name!r} was not found next to "
-                               f"it nor among the bundled models and guides")
+                               f"it, in guides/ beside it, nor among the bundled models")
     for key, digest_of in DIGESTS.items():
         digest = spec.get(key)
         if digest is not None and (actual := digest_of(path)) != digest:

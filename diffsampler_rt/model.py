@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import difflib
+import json
 import os
 import warnings
 from functools import lru_cache
@@ -25,6 +26,8 @@ from .shards import Shards, layout, usable_cores
 from .solvers import SOLVERS, solve
 
 MODELS_DIR = Path(__file__).parent / "models"
+#: folders searched for a model given by bare name, before the bundled models
+MODELS_ENV = "DIFFSAMPLER_MODELS"
 #: points evaluated per onnxruntime call when generating many sets
 POINTS_PER_BATCH = 32 * 1024
 
@@ -34,20 +37,52 @@ def bundled_models() -> list[str]:
     return sorted(p.stem for p in MODELS_DIR.glob("*.onnx"))
 
 
-def resolve(model: str | os.PathLike) -> Path:
-    """A bundled model name or a path to an ``.onnx`` file -> an existing path.
+def search_path() -> list[Path]:
+    """The folders of ``DIFFSAMPLER_MODELS`` (separated like ``PATH``), in order: a bare
+    name is looked up there before the bundled models, so a folder of your own models is
+    called by name."""
+    text = os.environ.get(MODELS_ENV, "")
+    return [Path(part).expanduser() for part in text.split(os.pathsep) if part]
 
-    A bare bundled name (``"gbn"``) is the bundled model, even beside a local file of that
-    name (write ``"./gbn"`` for the file). Any other existing file wins; a path that does
-    not exist but names a bundled model (``"gbn.onnx"``, ``"models/gbn.onnx"``) is that
-    bundled model; a folder is refused.
+
+def listed_models() -> dict[str, Path]:
+    """Every name a bare model name can be: the ``DIFFSAMPLER_MODELS`` folders' models and
+    the bundled ones, name -> the file it resolves to."""
+    names = {p.stem for folder in search_path() for p in folder.glob("*.onnx")}
+    return {name: _by_name(name) for name in sorted(names | set(bundled_models()))}
+
+
+def catalogue() -> dict[str, dict]:
+    """The bundled models' catalogue (``models/catalogue.json``, generated from their cards
+    and the speed and fidelity reports): name -> what it imitates, its network, sampling and
+    figures at n = 1024; empty where the file is missing."""
+    path = MODELS_DIR / "catalogue.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _by_name(name: str) -> Path | None:
+    for folder in search_path():
+        if (folder / f"{name}.onnx").is_file():
+            return (folder / f"{name}.onnx").resolve()
+    return MODELS_DIR / f"{name}.onnx" if name in bundled_models() else None
+
+
+def resolve(model: str | os.PathLike) -> Path:
+    """A model name or a path to an ``.onnx`` file -> an existing path.
+
+    A bare name (``"gbn"``) is ``NAME.onnx`` in the first ``DIFFSAMPLER_MODELS`` folder
+    holding it, else the bundled model, even beside a local file of that name (write
+    ``"./gbn"`` for the file). Any other existing file wins; a path that does not exist but
+    names a bundled model (``"gbn.onnx"``, ``"models/gbn.onnx"``) is that bundled model; a
+    folder is refused.
     """
     if not isinstance(model, (str, os.PathLike)):
         raise TypeError(f"model must be a bundled model name or a path, got {model!r}")
     text = os.fspath(model)
     path = Path(text)
-    if isinstance(model, str) and text in bundled_models():
-        return MODELS_DIR / f"{text}.onnx"
+    if isinstance(model, str) and os.sep not in text and "/" not in text \
+            and (found := _by_name(text)) is not None:
+        return found
     if path.is_file():
         return path.resolve()
     if path.is_dir():
@@ -320,12 +355,10 @@ def needs_exact_8bit(cpuinfo: str | None = None) -> bool:
     naming one of :data:`VNNI_FLAGS`); unknown CPUs get the exact products.
 
     With VNNI, onnxruntime's fast 8-bit kernel sums in 32 bits and is exact already, and the
-    option only makes it rewrite the weights to unsigned and take a slower kernel: on a
-    2-core Intel Xeon with AVX512-VNNI the 8-bit networks' outputs were bit for bit the same
-    with and without it (tests/test_quantize.py checks it on such hosts) and one evaluation
-    of sot_fast at n = 1024 in a batch of 32 on two single-thread sessions took 2.2-2.3 ms a
-    set without it, 4.6-4.9 with it (2026-12-06). AVX-VNNI without AVX-512 is trusted on
-    the same grounds (onnxruntime's kernel there also sums in 32 bits), not measured.
+    option only makes it rewrite the weights to unsigned and take a slower kernel, about
+    twice as slow for the same outputs bit for bit (tests/test_quantize.py checks the
+    outputs on such CPUs). AVX-VNNI without AVX-512 is trusted on the same grounds
+    (onnxruntime's kernel there also sums in 32 bits).
 
     Examples
     --------
@@ -364,7 +397,7 @@ def session_options(threads: int | None = None, *,
     ~45 instead of ~36 ms), batches do not, and work that follows a run gets the cores.
 
     The 8-bit (``_fast``) files' convolutions are computed exactly on every x86 CPU:
-    without VNNI (AVX2-only CPUs, e.g. many AMD EPYC / Ryzen and older Intel parts)
+    without VNNI (AVX2-only CPUs)
     onnxruntime's fast unsigned x signed byte product saturates its 16-bit sums, which
     doubled gbn_fast's noise-prediction error on such a host (2.0 % instead of 0.9 % of
     its RMS); ``session.x64quantprecision`` makes it use the exact kernel there (a little

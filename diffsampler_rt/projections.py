@@ -2,8 +2,8 @@
 
 A sampler's 1-d projections are part of what the star discrepancy (L2*) measures. The grid
 embedding leaves a net's rows and columns in its sets' projections: at small grids they come
-out more even than the sampler's (sot_32_fast at n = 256: 1-d discrepancy 13 % below SOT's,
-L2* 6 % below, docs/fast_models.md, session 82). :func:`spread_projections` scales, for each
+out more even than the sampler's, which lowers their star discrepancy below the sampler's.
+:func:`spread_projections` scales, for each
 axis, the deviations of the set's sorted coordinates from the evenly spread positions
 (i + 1/2) / n by a gain: above 1 the projections get as uneven as the sampler's, below 1
 more even. Each point moves along the axes only, by (gain - 1) times its own deviation

@@ -3,10 +3,8 @@
 onnxruntime parallelises one run inside each operator, and a denoiser evaluation is a long
 chain of small operators (a k = 32 grid is 1024 cells), so its threads wait on each other
 at every node. Giving each core its own single-thread session and its own slice of the
-batch, run side by side, leaves nothing to wait on. On a 2-core AMD EPYC (AVX2) one
-evaluation of gbn_fast at n = 1024 in a batch of 32 took 5.0 instead of 6.3 ms a set with
-the float network and 5.6 instead of 7.2 ms with the 8-bit one
-(benchmarks/results/ort_tuning.md, 2026-12-04). The outputs are bit for bit those of one
+batch, run side by side, leaves nothing to wait on (benchmarks/results/ort_tuning.md
+measures it). The outputs are bit for bit those of one
 session on the whole batch: onnxruntime's CPU kernels compute each set on its own and
 split no sum across threads (tests/test_shards.py checks it on bundled models). Not
 measured: CPUs with more than 2 cores, or with two hardware threads per core (the count

@@ -19,8 +19,9 @@ with 8-bit convolutions, calibrated on its own sampling (about a third less time
 evaluation on x86 CPUs; measure its fidelity with benchmarks/quantized.py).
 
 ``python -m export channels-last-pads MODEL.onnx -o OUT.onnx``: a circular 8-bit file
-quantised before session 70 with its wrap pads copied channels-last (the same outputs bit
-for bit; export/wrap_pad.py).
+whose wrap pads were quantised in place, rewritten with them copied channels-last (the same outputs bit
+for bit; export/wrap_pad.py). ``python -m export migrate MODEL.onnx ...``: rewrite
+format-1 model cards as format 2 in place.
 """
 from __future__ import annotations
 

@@ -15,15 +15,13 @@ Measured choices (benchmarks/results/quantized.md has the numbers):
   model's to 0.1 %;
 - a circular net's ``Pad(mode="wrap")`` nodes (export/wrap_pad.py) are moved after the
   QuantizeLinear they feed and written as Slice and Concat: the same values, bit for bit,
-  copied as bytes in blocks (gbn_torus_fast at n = 1024, 32 sets: 35.8 -> 32.9 ms a set),
-  since session 70 channels-last where only 8-bit convolutions read them (one evaluation
-  ~5 % faster on an AVX2 CPU; ``python -m export channels-last-pads`` rewrites a file
-  quantised before);
+  copied as bytes in blocks, channels-last where only 8-bit convolutions read them
+  (``python -m export channels-last-pads`` rewrites a file quantised without that);
 - weights are unsigned 8-bit (asymmetric, per channel). x86 CPUs without VNNI multiply
   unsigned x signed bytes with an instruction that saturates, and onnxruntime's
   QLinearConv takes that route even for unsigned weights unless the session sets
-  ``session.x64quantprecision`` (seen on an AVX2-only AMD EPYC host in session 66:
-  gbn_fast's noise prediction 2.0 % off its float model's instead of 0.9 %), so the
+  ``session.x64quantprecision`` (on an AVX2-only CPU without it, an 8-bit network's noise
+  prediction is about twice as far off its float model's), so the
   runtime's sessions set it unless the CPU has VNNI
   (``diffsampler_rt.model.needs_exact_8bit``): with VNNI the fast kernel is exact, and the
   option, which still rewrites the weights for the slower unsigned x unsigned kernel, gave
@@ -158,7 +156,7 @@ def quantize(src: str | Path, dst: str | Path, *, sides: tuple[int, ...] | None 
 def wrap_pads_to_channels_last(src: str | Path, dst: str | Path) -> int:
     """Write the 8-bit file ``src`` to ``dst`` with its wrap pads copied channels-last
     (:func:`export.wrap_pad.wrap_pads_channels_last`: the same outputs bit for bit, for
-    files quantised before session 70); returns how many pads it rewrote (0: ``dst`` is a
+    files whose pads were quantised in place); returns how many pads it rewrote (0: ``dst`` is a
     copy). The card's ``quantization.wrap_pads`` says so."""
     src, dst = Path(src), Path(dst)
     model = _load(src)

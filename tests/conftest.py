@@ -5,6 +5,12 @@ from pathlib import Path
 
 import pytest
 
+from trainer import zoo
+
+# model names in the tests are the repository's networks (models/NAME.onnx); the tests of the
+# wheel's own one-per-sampler models name diffsampler_rt.model.MODELS_DIR or clear this
+zoo.use()
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 REFERENCE_CSV = SHARED / "reference" / "radial_spectra_original_n1024.csv"
 

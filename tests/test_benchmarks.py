@@ -328,7 +328,7 @@ def test_integration_check_reads_the_cached_reference(tmp_path):
     from trainer.samplers import sample
     env = {**__import__("os").environ, "DIFFSAMPLER_CACHE": str(tmp_path)}
     cmd = [sys.executable, "benchmarks/integration_check.py", "sobol_owen", "64", "3", "8",
-           "sobol_owen", "diffsampler_rt/models/sobol_owen.onnx"]
+           "sobol_owen", "models/sobol_owen.onnx"]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
     assert res.returncode != 0 and "no cached reference sets" in res.stderr
     (tmp_path / "reference").mkdir()
@@ -338,7 +338,7 @@ def test_integration_check_reads_the_cached_reference(tmp_path):
     assert res.returncode == 0, res.stderr
     lines = res.stdout.strip().splitlines()
     assert lines[0].startswith("sobol_owen n=64: 3 generated sets per model vs 8 reference")
-    # the bundled name and its path: the same sets, the same figures (timing aside)
+    # the network by name and by path: the same sets, the same figures (timing aside)
     assert lines[1].split(": ", 1)[1].rsplit("[", 1)[0] == lines[2].split(": ", 1)[1].rsplit("[", 1)[0]
     assert "Gauss MSE" in lines[1] and "spectrum MAE" in lines[1]
     # a second seed's file is pooled with the first; a missing one is named

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import diffsampler_rt
+from trainer import zoo
 
 BELOW_ONE = np.nextafter(1.0, 0.0)
 
@@ -17,7 +18,7 @@ def border_coordinates(points: np.ndarray) -> int:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", diffsampler_rt.list_models())
+@pytest.mark.parametrize("name", zoo.networks())
 def test_no_generated_coordinate_sits_on_the_border(name):
     model = diffsampler_rt.load(name)
     # >= 100 k points: a square size and a thinned one (thinning and restoring move points

@@ -58,15 +58,24 @@ def test_generate_any_n(tmp_path):
         "gbn_fast", 1000, count=2, seed=3))
 
 
-def test_list_and_info(capsys):
+def test_list_and_info(capsys, monkeypatch, tmp_path):
+    import diffsampler_rt
+    from diffsampler_rt.model import MODELS_ENV, bundled_models
+    monkeypatch.delenv(MODELS_ENV)
     assert main(["list"]) == 0
-    out = capsys.readouterr().out
-    assert "rank1" in out and "sobol_owen" in out
-    lines = {line.split()[0]: line for line in out.splitlines()}
-    assert "8-bit convolutions" in lines["gbn_fast"] and "8-bit" not in lines["gbn"]
-    assert "toroidal" in lines["gbn_torus_fast"] and "toroidal" not in lines["gbn_fast"]
+    out = capsys.readouterr().out.splitlines()
+    lines = {line.split()[0]: line for line in out[:-1]}
+    assert sorted(lines) == bundled_models()  # one line per shipped model
+    assert "network gbn_torus_fast" in lines["gbn"] and "ddim 6 steps" in lines["gbn"]
+    assert "ms a 1024-point set" in lines["sobol_owen"] and "speed report" in out[-1]
     # one column each: every line's fields start where the others' do
-    assert len({line.index(" sampler=") for line in lines.values()}) == 1
+    assert len({line.index(" network ") for line in lines.values()}) == 1
+    # a folder of one's own models: listed by name, with its card's facts
+    (tmp_path / "mine.onnx").write_bytes(diffsampler_rt.load("rank1").path.read_bytes())
+    monkeypatch.setenv(MODELS_ENV, str(tmp_path))
+    assert main(["list"]) == 0
+    mine = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("mine "))
+    assert "network rank1" in mine and "not timed" in mine
     assert main(["info", "rank1"]) == 0
     out = capsys.readouterr().out
     assert '"sampler": "rank1"' in out

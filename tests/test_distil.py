@@ -9,6 +9,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("onnx")
 
 import diffsampler_rt  # noqa: E402
+from trainer import zoo  # noqa: E402
 from diffsampler_rt.schedule import alphas_cumprod, timesteps  # noqa: E402
 from diffsampler_rt.solvers import ddim, solve  # noqa: E402
 from trainer.distil import (DistilConfig, Distiller, hop_loss, hop_times,  # noqa: E402
@@ -384,7 +385,7 @@ def test_bundled_students_were_distilled_from_the_bundled_teachers():
     # `python -m trainer distil trainer/configs/distil/NAME.json` distils from the bundled
     # teacher, so a student must have been made from exactly that file to be reproducible
     from trainer.distil import network_hash
-    for name in diffsampler_rt.list_models():
+    for name in zoo.networks():
         card = diffsampler_rt.load(name).card
         if "distillation" not in card:
             continue

@@ -13,6 +13,7 @@ from diffsampler_rt.finish import STEPS, Context
 from diffsampler_rt.finish.pipeline import (describe, entry_problem, params_of, pipeline_problem,
                                             plan)
 from diffsampler_rt.grid import cell_centres
+from trainer import zoo
 
 
 def stratified(k: int, sets: int, seed: int) -> np.ndarray:
@@ -279,7 +280,7 @@ def test_a_format_1_file_loads_and_makes_the_same_sets(tmp_path):
 
 def test_every_bundled_card_is_format_2_and_describes_its_steps():
     import diffsampler_rt
-    for name in diffsampler_rt.list_models():
+    for name in zoo.networks():
         card = diffsampler_rt.load(name).card
         assert card["format_version"] == 2
         lines = describe(card["pipeline"])

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import diffsampler_rt
+from trainer import zoo
 from diffsampler_rt.errors import ModelFormatError
 from diffsampler_rt.finish.pipeline import find, pipeline_problem
 from diffsampler_rt.guidance import describe, guided, settings_problem, weight_at
@@ -205,7 +206,7 @@ def test_every_bundled_model_finds_its_guide():
     """Each bundled card's guide is found and is the network its weights were tuned with
     (an edit of the guide's own card once orphaned sot: its card held the guide file's
     sha256), and shares the model's schedule and embedding."""
-    guided_models = [name for name in diffsampler_rt.list_models()
+    guided_models = [name for name in zoo.networks()
                      if find(diffsampler_rt.load(name).card["pipeline"], "guide")]
     assert {"sot", "sot_32"} <= set(guided_models)
     for name in guided_models:
@@ -215,23 +216,22 @@ def test_every_bundled_model_finds_its_guide():
         assert model.guide(spec).card["name"] == spec["model"]
 
 
-def test_bundled_guides_are_found_but_not_listed():
-    """Networks shipped only to guide others (models/guides/) are found by the cards that
-    name them, are each used by some bundled model, and are not offered as models; a guide
+def test_guides_are_found_but_not_listed():
+    """Networks kept only to guide others (models/guides/) are found by the cards that
+    name them, are each used by some network, and are not offered as models; a guide
     is loaded once and its session does not spin."""
     from diffsampler_rt.errors import UnknownModelError
-    from diffsampler_rt.model import MODELS_DIR
-    guides = sorted(p.stem for p in (MODELS_DIR / "guides").glob("*.onnx"))
+    guides = sorted(p.stem for p in (zoo.ZOO_DIR / "guides").glob("*.onnx"))
     assert "sot_32_guide" in guides
-    assert not set(guides) & set(diffsampler_rt.list_models())
+    assert not set(guides) & set(zoo.networks())
     with pytest.raises(UnknownModelError, match="sot_32_guide"):
         diffsampler_rt.load("sot_32_guide")
     used = {(find(diffsampler_rt.load(name).card["pipeline"], "guide") or {}).get("model")
-            for name in diffsampler_rt.list_models()}
+            for name in zoo.networks()}
     assert set(guides) <= used
     model = diffsampler_rt.Model(diffsampler_rt.load("sot_32").path)
     spec = find(model.card["pipeline"], "guide")
-    assert model.guide(spec).path == MODELS_DIR / "guides" / "sot_32_guide.onnx"
+    assert model.guide(spec).path == zoo.ZOO_DIR / "guides" / "sot_32_guide.onnx"
     assert diffsampler_rt.Model(diffsampler_rt.load("sot_32").path).guide(spec) is \
         model.guide(spec)
     # the two networks take turns: neither session's idle workers spin

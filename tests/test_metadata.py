@@ -7,10 +7,10 @@ import pytest
 
 from diffsampler_rt import metadata
 from diffsampler_rt.metadata import WireFormatError, read_metadata
-from diffsampler_rt.model import MODELS_DIR
+from trainer import zoo
 
 
-@pytest.mark.parametrize("path", sorted(MODELS_DIR.glob("*.onnx")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", sorted(zoo.ZOO_DIR.glob("*.onnx")), ids=lambda p: p.stem)
 def test_reads_what_onnxruntime_reads(path):
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     assert read_metadata(path) == dict(session.get_modelmeta().custom_metadata_map)
@@ -56,7 +56,7 @@ def test_network_digest_leaves_the_card_out(tmp_path):
     the model without them): the same after a card edit, another for another network."""
     onnx = pytest.importorskip("onnx")
     import hashlib
-    source = MODELS_DIR / "sot_32.onnx"
+    source = zoo.ZOO_DIR / "sot_32.onnx"
     model = onnx.load(str(source))
     del model.metadata_props[:]
     bare = model.SerializeToString()
@@ -67,7 +67,7 @@ def test_network_digest_leaves_the_card_out(tmp_path):
     entry.key, entry.value = "note", "a card edit"
     onnx.save(model, str(tmp_path / "edited.onnx"))
     assert metadata.network_sha256(tmp_path / "edited.onnx") == metadata.network_sha256(source)
-    assert metadata.network_sha256(MODELS_DIR / "sot.onnx") != metadata.network_sha256(source)
+    assert metadata.network_sha256(zoo.ZOO_DIR / "sot.onnx") != metadata.network_sha256(source)
     (tmp_path / "junk.onnx").write_bytes(b"not an onnx file at all")
     with pytest.raises(WireFormatError):
         metadata.network_sha256(tmp_path / "junk.onnx")

@@ -9,6 +9,7 @@ onnx = pytest.importorskip("onnx")
 pytest.importorskip("torch")
 
 import diffsampler_rt  # noqa: E402
+from trainer import zoo  # noqa: E402
 from diffsampler_rt.card import CARD_KEY  # noqa: E402
 from export.__main__ import main as export_main  # noqa: E402
 from export.quantize import quantize, solver_inputs  # noqa: E402
@@ -156,7 +157,7 @@ def test_quantize_cli(tiny_onnx, tmp_path, capsys):
 def test_bundled_quantised_models_come_from_the_float_files_kept_in_the_repo():
     # the float file is what `python -m export quantize` needs to reproduce the bundled one,
     # and what benchmarks/quantized.py compares it with
-    quantised = [m for m in diffsampler_rt.list_models()
+    quantised = [m for m in zoo.networks()
                  if diffsampler_rt.load(m).card.get("weights") == "int8"]
     assert quantised, "no quantised bundled model"
     for name in quantised:
@@ -266,7 +267,7 @@ def test_wrap_pads_feeding_8_bit_convolutions_are_copied_channels_last(circular_
 
 def test_bundled_circular_8_bit_models_copy_their_pads_channels_last():
     from export.wrap_pad import wrap_pads_channels_last
-    names = [m for m in diffsampler_rt.list_models()
+    names = [m for m in zoo.networks()
              if diffsampler_rt.load(m).card.get("weights") == "int8"
              and diffsampler_rt.load(m).card["config"]["unet"].get("padding") == "circular"]
     assert names

@@ -6,6 +6,7 @@ import diffsampler_rt
 from diffsampler_rt import (ModelFormatError, ModelNotFoundError, UnknownModelError, generate,
                             list_models, load)
 from diffsampler_rt._validate import MAX_POINTS
+from trainer import zoo
 
 
 def test_bundled_models_present():
@@ -20,7 +21,7 @@ def test_bundled_models_generate(name, n):
     assert np.all(np.isfinite(pts)) and np.all((pts >= 0) & (pts < 1))
 
 
-@pytest.mark.parametrize("name", list_models())
+@pytest.mark.parametrize("name", list_models() + zoo.networks())
 def test_every_bundled_model_runs_at_its_card_defaults(name):
     """Each bundled model makes a set with everything its card asks for (guide, polish,
     structure, density): a card that cannot run (e.g. a guide it no longer matches) fails

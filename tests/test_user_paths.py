@@ -16,11 +16,12 @@ import pytest
 import diffsampler_rt
 from diffsampler_rt import ModelNotFoundError, UnknownModelError
 from diffsampler_rt.cli import main
-from diffsampler_rt.model import MODELS_DIR, resolve
+from diffsampler_rt.model import MODELS_DIR, MODELS_ENV, resolve
 
 
 def test_the_bundled_model_by_file_name(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv(MODELS_ENV, raising=False)  # the wheel's models only
     assert resolve("gbn.onnx") == MODELS_DIR / "gbn.onnx"
     assert resolve("models/gbn.onnx") == MODELS_DIR / "gbn.onnx"
     np.testing.assert_array_equal(diffsampler_rt.generate("gbn.onnx", 64, seed=1),
@@ -31,6 +32,20 @@ def test_the_bundled_model_by_file_name(tmp_path, monkeypatch):
     # a bare name is the bundled model; "./name" is the file
     (tmp_path / "gbn").write_bytes(b"not a model")
     assert resolve("gbn") == MODELS_DIR / "gbn.onnx" and resolve("./gbn") == tmp_path / "gbn"
+
+
+def test_a_folder_of_own_models_is_searched_by_name_first(tmp_path, monkeypatch):
+    mine, more = tmp_path / "mine", tmp_path / "more"
+    mine.mkdir(), more.mkdir()
+    (more / "mymodel.onnx").write_bytes((MODELS_DIR / "rank1.onnx").read_bytes())
+    (mine / "gbn.onnx").write_bytes((MODELS_DIR / "lattice.onnx").read_bytes())
+    monkeypatch.setenv(MODELS_ENV, os.pathsep.join([str(mine), str(more)]))
+    assert resolve("mymodel") == more / "mymodel.onnx"
+    assert resolve("gbn") == mine / "gbn.onnx"  # the user's folder before the wheel's
+    assert resolve("sot") == MODELS_DIR / "sot.onnx"  # not in a folder: the bundled one
+    assert diffsampler_rt.load("mymodel").card["name"] == "rank1"
+    with pytest.raises(UnknownModelError, match="unknown model 'other'"):
+        resolve("other")
 
 
 def test_folders_and_near_misses_are_named_as_such(tmp_path):

@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
                         "without avx512_bf16 or AMX, where autocast is emulated and ~16-20x "
                         "slower); the run records bf16 false, so a resume needs --fp32 too")
 
-    d = sub.add_parser("distil", help="distil a bundled model into a few-step student")
+    d = sub.add_parser("distil", help="distil a model into a few-step student")
     d.add_argument("config", type=Path, help="e.g. trainer/configs/distil/gbn_fast.json")
     _run_options(d, "default: runs/<config file name without .json>")
 
@@ -179,8 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--minutes", type=float, default=None,
                    help="training budget in minutes (default 20; export, calibration and "
                         "report come on top)")
-    f.add_argument("--init", help="start from a bundled model or an exported .onnx "
-                   "(fine-tuning)")
+    f.add_argument("--init", help="start from a float model: a network name of models/ or an "
+                   "exported .onnx (fine-tuning)")
     f.add_argument("--symmetries", default="0",
                    help="symmetries of the square the examples have, as augmentations: "
                         "comma-separated 0-7 (1 mirror x, 2 mirror y, 4 swap x and y, and "
@@ -193,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     f.add_argument("--threads", type=int, help="torch threads (default: the cores, <= 8)")
     f.add_argument("--net", default="standard", choices=["standard", "small"],
-                   help="standard: the bundled models' network (needed by --init); small: "
+                   help="standard: the shipped models' network (needed by --init); small: "
                         "quick trials")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--no-progress", action="store_true")

@@ -1,4 +1,4 @@
-"""Few-step students distilled from a bundled model (trajectory distillation).
+"""Few-step students distilled from a model (trajectory distillation).
 
 Progressive distillation (Salimans & Ho 2022) teaches a student to take in ONE
 deterministic DDIM step what the teacher takes in two, and repeats. Here one round goes
@@ -61,6 +61,7 @@ from diffsampler_rt import per_size
 from diffsampler_rt.finish import legacy
 from diffsampler_rt.finish import pipeline as finishing
 
+from . import zoo
 from .data import cache_dir, make_pool
 from .density import OLD_FLOOR
 from .drop_blocks import drop_res_blocks
@@ -80,7 +81,7 @@ SPECTRUM_TARGETS = ("teacher", "examples")
 class DistilConfig:
     """One distillation run; saved in the checkpoint and in the student's model card."""
 
-    #: the teacher: a bundled model name or an ``.onnx`` path
+    #: the teacher: a network name (``models/NAME.onnx``, :mod:`trainer.zoo`) or an ``.onnx`` path
     teacher: str
     #: the student's model name (its card and file name)
     name: str
@@ -352,7 +353,7 @@ class Distiller:
         self.progress = progress
         torch.set_num_threads(cfg.threads)
         torch.manual_seed(cfg.seed)
-        self.teacher = diffsampler_rt.Model(cfg.teacher, threads=cfg.threads)
+        self.teacher = diffsampler_rt.Model(zoo.resolve(cfg.teacher), threads=cfg.threads)
         net, self.teacher_cfg, self.teacher_card = net_from_onnx(self.teacher.path)
         # the device is not part of the recipe: teacher trajectories and the random draws
         # stay on the CPU, the student trains where it is told
@@ -459,7 +460,7 @@ class Distiller:
         if not spec:
             return None
         if isinstance(spec, str):
-            return diffsampler_rt.Model(spec, threads=1).card
+            return diffsampler_rt.Model(zoo.resolve(spec), threads=1).card
         if not isinstance(spec, dict):
             raise ValueError(f"spectrum_card must be a model or a dict of card entries, "
                              f"got {spec!r}")

@@ -2,9 +2,7 @@
 
 A student with fewer res blocks than its teacher's net is faster a step; started from the
 trained net with its extra blocks dropped instead of from fresh weights, it begins close to
-what it must learn (sot_fast's student cut from 2 to 1 block a level: distillation loss
-4.7 at the start, where a fresh net's first logged loss was 14; docs/fast_models.md,
-sessions 73-74).
+what it must learn (its first distillation losses are far below a fresh net's).
 
 Which blocks stay: on each down level the first ``num_res_blocks``; on each up level the
 first ``num_res_blocks`` and the last, which reads the skip of the level's downsampling (or

@@ -102,8 +102,8 @@ class Trainer:
         # not part of the config: a run may move between CPU and GPU and still resume
         self.device = torch.device(device)
         if cfg.bf16 and not native_bf16(self.device):
-            # emulated bf16 autocast: measured 16-20x slower a step than float32 on an
-            # AVX2 CPU (docs/training.md), so a 50-minute recipe would take most of a day
+            # emulated bf16 autocast is many times slower a step than float32 on CPUs
+            # without native bf16: a 50-minute recipe would take most of a day
             warnings.warn(f"config {cfg.name!r} asks for bf16 autocast, which this "
                           f"{self.device.type} does not compute natively (no avx512_bf16 or "
                           "AMX): steps run ~16-20x slower than in float32; `python -m "

@@ -53,8 +53,8 @@ def _check_name(name: str) -> str:
 def _init_path(init: str | os.PathLike | None) -> str | None:
     if init is None:
         return None
-    import diffsampler_rt
-    return str(diffsampler_rt.model.resolve(init))
+    from .. import zoo
+    return str(zoo.resolve(init))
 
 
 def _config(name: str, analysis, sides: list[int], pools: dict[int, np.ndarray], *,

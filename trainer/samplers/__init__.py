@@ -35,6 +35,19 @@ SAMPLERS: dict[str, SamplerFn] = {
     "ldbn": ldbn,
 }
 
+#: name -> what the sampler makes, in plain words (the model catalogue's "imitates")
+DESCRIPTIONS: dict[str, str] = {
+    "sobol_owen": "Sobol' points, Owen-scrambled (low discrepancy; (0, m, 2)-nets)",
+    "rank1": "rank-1 Korobov lattice, max-min-distance generator, random shift",
+    "lattice": "rank-1 Korobov lattice, P2-optimal generator, random shift",
+    "poisson_disk": "Poisson disk: toroidal dart throwing",
+    "gbn": "Gaussian blue noise (GBN) on the torus",
+    "sot": "sliced optimal transport (SOT) blue noise",
+    "sot_ramp": "SOT for the ramp density p(x, y) = 2x (non-uniform)",
+    "gbn_blob": "GBN importance-sampled to a two-part blob density (non-uniform)",
+    "ldbn": "low-discrepancy blue noise (LDBN)",
+}
+
 #: samplers that take seconds per set (iterative optimisers); tests keep their sizes small
 SLOW = frozenset({"poisson_disk", "gbn", "sot", "sot_ramp", "gbn_blob"})
 
