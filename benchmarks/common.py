@@ -134,3 +134,14 @@ def example_reference(name: str, n: int, seed: int) -> np.ndarray:
         if len(pts):
             return pts[0]
     return sample(name, n, count=1, seed=seed)[0]
+
+
+def save_png(fig, path: Path, dpi: int = 70) -> None:
+    """A matplotlib figure as a 256-colour PNG: a fraction of the full-colour file's size
+    for plots of points and curves, so that the results folder stays small."""
+    import io
+
+    from PIL import Image
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    Image.open(buf).convert("RGB").quantize(256).save(path, optimize=True)

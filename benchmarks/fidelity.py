@@ -1,4 +1,4 @@
-"""Fidelity of the bundled models: generated vs reference sets side by side, in one run.
+"""Fidelity of the networks (models/): generated vs reference sets side by side, in one run.
 
 For every model and n in --sizes: the radial-spectrum mean absolute difference (79 bins)
 between generated and reference sets, and the means of the OT energy, star L2 discrepancy,
@@ -16,7 +16,7 @@ Reference sets and their statistics are cached under ~/.cache/diffsampler/refere
 are deterministic in their seeds); generated sets are made in the run. Each model's results
 are kept in benchmarks/results/fidelity/<model>.json together with the hash of the model file
 and the run's settings, so models can be measured one at a time (e.g. as they finish
-training) and the report always covers every bundled model: a model whose file changed since
+training) and the report always covers every network in models/: a model whose file changed since
 its measurement is listed as not measured. A runtime change can move a file's sets too:
 --check-kept regenerates the first sets of every kept row and notes in the report the rows
 the current runtime no longer reproduces. Writes benchmarks/results/fidelity.md,
@@ -69,7 +69,7 @@ TARGET_MAE = {"poisson_disk": 0.055, "gbn": 0.032, "sot": 0.007, "sot_32": 0.007
 
 
 def target_mae(name: str) -> float | None:
-    """Issue 4's spectrum target of a bundled model: its own, or for a distilled student
+    """The spectrum target of a network: its own, or for a distilled student
     (``<base>_fast``) its base model's (issue 5 holds the students to the zoo's targets)."""
     return TARGET_MAE.get(name, TARGET_MAE.get(name.removesuffix("_fast")))
 
@@ -467,12 +467,12 @@ def stop_if_stale(name: str, sizes: list[int], out: Path, seed: int) -> None:
         return
     old = json.loads(path.read_text())
     model, unwarp = diffsampler_rt.load(name), UNWARP.get(old["sampler"])
-    for n, row in ((int(n), row) for n, row in old["rows"].items()):
-        if n in sizes:
-            continue
-        if old.get("settings", {}).get("seed") != seed or not reproduced(model, row, n, seed, unwarp):
-            raise SystemExit(f"{name}: the kept row at n = {n} is not reproduced by the "
-                             "current model file; measure that size again")
+    stale = [n for n, row in ((int(n), row) for n, row in old["rows"].items())
+             if n not in sizes and (old.get("settings", {}).get("seed") != seed
+                                    or not reproduced(model, row, n, seed, unwarp))]
+    if stale:
+        raise SystemExit(f"{name}: the kept rows at n = {' '.join(map(str, stale))} are not "
+                         "reproduced by the current model file; measure those sizes again")
 
 
 def check_kept(name: str, out: Path) -> list[int]:
@@ -783,7 +783,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
         + pool_text(st) + _stored_option(st.get("stored_reference")) + f"` on {d}"
         for d, st in ((d, json.loads(j)) for d, j in runs))
     lines = [
-        "# Fidelity of the bundled models vs their reference samplers",
+        "# Fidelity of the networks (models/) vs their reference samplers",
         "",
         f"{how} ({os.cpu_count()} cores). "
         "Generated sets (default solver and steps of each model card) and reference sets are "
@@ -846,7 +846,7 @@ def report(results: list[dict], missing: list[str], out: Path) -> None:
                      + " | ".join(_fmt_rel(row[k], tolerance(k)) for k in STATS) + " |")
     lines += [""] + _tally_lines(results)
     if missing:
-        lines += ["", "**Not measured yet** (bundled, but no result for the current model file): "
+        lines += ["", "**Not measured yet** (in models/, but no result for the current model file): "
                   + ", ".join(missing) + "."]
     for r in results:
         c = r["card"]
@@ -923,7 +923,7 @@ def plot(r: dict, path: Path) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--models", nargs="*", help="default: every bundled model")
+    p.add_argument("--models", nargs="*", help="default: every network in models/")
     p.add_argument("--sizes", type=int, nargs="*", default=list(SIZES))
     p.add_argument("--sets", type=int, default=128, help="sets per side (fast samplers; all at 1024)")
     p.add_argument("--slow-sets", type=int, default=64,

@@ -26,7 +26,7 @@ from trainer import zoo  # noqa: E402
 zoo.use()  # model names are the repository's networks (models/), not the wheel's copies
 
 import diffsampler_rt  # noqa: E402
-from benchmarks.common import cache_dir  # noqa: E402
+from benchmarks.common import cache_dir, save_png  # noqa: E402
 from diffsampler_rt.spectrum import periodogram, radial_spectrum  # noqa: E402
 from trainer.samplers import sample  # noqa: E402
 from trainer.samplers.densities import UNWARP  # noqa: E402
@@ -84,7 +84,7 @@ def main() -> None:
         print(f"{name}: done", flush=True)
     fig.tight_layout()
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.out, dpi=70)
+    save_png(fig, a.out)
     print(f"wrote {a.out}")
     from benchmarks import violins
     kept = violins.load(a.models, violins.RESULTS)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,9 @@ def draw(results: dict[str, dict], out: Path) -> None:
                                plt.Rectangle((0, 0), 1, 1, color="C1", alpha=0.6)],
                       labels=["reference", "learned"], fontsize=7, loc="upper right")
     fig.tight_layout()
-    fig.savefig(out, dpi=70)
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.common import save_png
+    save_png(fig, out)
     plt.close(fig)
     print(f"wrote {out}")
 

@@ -187,6 +187,39 @@ def test_evening_gain_is_the_one_whose_spectrum_comes_closest():
     assert gains[64] > 0 and maes[f"{gains[64]:g}"] == min(maes.values())
 
 
+def test_a_searched_step_runs_where_its_phase_does_and_only_where_it_helps():
+    from trainer.fitting.calibrate import _insert, choose
+    pipe = [{"step": "thin", "drop": "crowded"}, {"step": "min_spacing", "c": 0.7}]
+    assert _insert(pipe, {"step": "coarse_noise", "gain": 1.2}, "noise")[0]["step"] == \
+        "coarse_noise"
+    assert [e["step"] for e in _insert(pipe, {"step": "even_out", "gain": 0.5}, "points")] == [
+        "thin", "even_out", "min_spacing"]  # the spacing stays last
+    examples = {64: drawn("poisson_disk", 64, 32, 2), 256: drawn("poisson_disk", 256, 32, 2)}
+    same = lambda v: lambda n, c: drawn("poisson_disk", n, 64, 7)[:c]  # noqa: E731
+    chosen, figures = choose((2, 5), 0, same, examples)
+    assert chosen == {64: 0, 256: 0} and set(figures[64]["mae"]) == {"0", "2", "5"}
+
+
+def test_a_density_model_is_calibrated_in_the_square(tiny_onnx, tmp_path):
+    """The held-in sets are unwarped by the model's map, so the spacing is the square's."""
+    import shutil
+
+    import diffsampler_rt
+    from diffsampler_rt.density import warp
+    from export.defaults import edit_card
+    from trainer.fitting.calibrate import calibrate
+    from trainer.stats.distance import spacing_coefficient
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    ramp = {"x_cdf": list(np.linspace(0, 1, 9) ** 2), "y_cdf": [list(np.linspace(0, 1, 9))] * 8}
+    edit_card(path, lambda card: card.update(density=ramp))
+    square = drawn("poisson_disk", 64, 32, 2)
+    card = calibrate(path, {64: warp(square, ramp)}, None, [], searches=(), log=lambda _: None)
+    c = next(e["c"] for e in card["pipeline"] if e["step"] == "min_spacing")
+    assert c == pytest.approx(spacing_coefficient(square, 5.0), abs=2e-3)
+    assert diffsampler_rt.Model(path).card["density"] == ramp
+
+
 # ---- training: resumption and data parallelism ---------------------------------------------
 
 def tiny_fit_trainer(run_dir, pools, seed=0):
@@ -289,6 +322,6 @@ def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_p
     steps = [e["step"] for e in card["pipeline"]]
     assert steps[0] == "thin" and card["pipeline"][0]["drop"] == "crowded"
     assert "min_spacing" in steps and {c["step"] for c in card["calibration"]} >= {
-        "min_spacing", "even_out"}
+        "min_spacing", "coarse_noise", "sliced_ot", "even_out"}  # each search has its note
     assert "min_spacing" in capsys.readouterr().out
     assert main(["calibrate", str(tmp_path / "nope.onnx"), str(tmp_path / "blue.npy")]) == 2

@@ -1,27 +1,34 @@
 """Finishing steps chosen from held-in example sets by fixed procedures (never by hand).
 
-``calibrate`` writes a model's pipeline from three findings:
+``calibrate`` writes a model's pipeline from these findings, in order:
 
 1. **Structure** (:mod:`.analysis`): where every example set is a (0, m, 2)-net, has
    stratified projections, or is a rank-1 lattice, the matching structure step (a lattice at
    the example sizes only: its generator is chosen per n).
 2. **Minimum spacing**: per example size, c = the 5th percentile of the sets' smallest
-   pairwise distance times sqrt(n) (``trainer.stats.spacing_coefficient``, the procedure
-   the bundled blue-noise cards were made with). Sets whose c is at least ``BLUE_NOISE`` at
-   every size are blue noise: the model gets ``min_spacing`` with c per size, and its
-   thinning drops the most crowded points; other sets get neither (random thinning).
-3. **Large-scale evening**: the model's sets (with steps 1-2) are made at each example
-   size with the ``even_out`` gains of ``EVEN_GAINS`` (0: none), and each gain's mean radial
-   spectrum compared with the held-in sets' (mean absolute difference over every bin, so a
-   gain that evens the large scales but disturbs the pattern pays for it). A size gets the
-   gain with the smallest difference if it beats no evening by more than the difference's
-   noise (half that between two halves of the held-in sets), else none.
+   pairwise distance times sqrt(n) (``trainer.stats.spacing_coefficient``). Sets whose c is
+   at least ``BLUE_NOISE`` at every size are blue noise: the model gets ``min_spacing`` with
+   c per size, and its thinning drops the most crowded points; other sets get neither
+   (random thinning).
+3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's coarse-mode
+   gain, sliced optimal-transport iterations, and the large-scale evening. For each, the
+   model's sets (with every step chosen so far) are made at each example size with each of
+   the step's candidate values, and their mean radial spectrum compared with the held-in
+   sets' (mean absolute difference over every bin, so a value that fixes the large scales
+   but disturbs the pattern pays for it). A size gets the candidate with the smallest
+   difference where it beats the pipeline without the step by more than the difference's
+   noise (half that between two halves of the held-in sets), else none; a step no size
+   gets is left out. Steps acting on the points are not searched where a structure step
+   holds (they would move points off it).
 
+A model with a density map (non-uniform examples) is calibrated in the uniform square: the
+held-in sets and the model's sets are unwarped by its map first, where its point steps act.
 Every choice is recorded with its figures in the card (``"calibration"``).
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -32,17 +39,38 @@ from diffsampler_rt.spectrum import radial_spectrum
 #: random sets of 64-1024 points have c ~ 0.01-0.05, jittered grids ~0.05-0.1)
 BLUE_NOISE = 0.3
 SPACING_PERCENTILE = 5.0
-#: the large scales the evening calibration compares, in units of sqrt(n)
-EVEN_CUT = 0.5
-#: sets generated per size to calibrate the evening, and the gains it tries
-EVEN_SETS = 64
+#: sets generated per size and candidate value
+SEARCH_SETS = 64
+
+
+@dataclass(frozen=True)
+class Search:
+    """A step whose parameter ``param`` is chosen per size among ``values``; ``entry`` holds
+    its other parameters, ``off`` is the value that leaves the sets as they are."""
+    entry: dict
+    param: str
+    values: tuple
+    off: Any
+
+    @property
+    def step(self) -> str:
+        return self.entry["step"]
+
+
+#: the searched steps, in the order they are chosen
+SEARCHES = (
+    Search({"step": "coarse_noise", "cut": 0.25}, "gain", (0.8, 1.25, 1.5), 1.0),
+    Search({"step": "sliced_ot", "directions": 128}, "iterations", (2, 5, 12, 24), 0),
+    Search({"step": "even_out", "cut": 0.5}, "gain", (-0.5, -0.25, 0.25, 0.5, 0.75, 0.9), 0.0),
+)
+#: the evening's candidates with "off" (the gains the fit report names)
 EVEN_GAINS = (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 0.9)
 
 
 def _table(values: dict[int, float], digits: int = 4) -> Any:
     """A per-size pipeline value: one number for one size, else {"n": ..., "values": ...}."""
     sizes = sorted(values)
-    vals = [round(float(values[n]), digits) for n in sizes]
+    vals = [v if isinstance(v := values[n], int) else round(float(v), digits) for n in sizes]
     return vals[0] if len(sizes) == 1 else {"n": sizes, "values": vals}
 
 
@@ -75,10 +103,9 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
             {**spaced, "where": "unstructured"}]
 
 
-def evening(generate: Callable[[float], Callable[[int, int], np.ndarray]],
-            held_in: dict[int, np.ndarray]) -> tuple[dict[int, float], dict[int, dict]]:
-    """The even_out gain per size (0 where no gain beats none by more than the noise) and
-    the figures; ``generate(gain)`` makes sets (n, count) with that gain at every size."""
+def spectrum_targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float]]:
+    """Per size: the held-in sets' mean radial spectrum, and the noise of a difference from
+    it (half the mean absolute difference between the two halves' spectra)."""
     from diffsampler_rt.spectrum import spectrum_mae
     targets = {}
     for n, sets in held_in.items():
@@ -86,27 +113,90 @@ def evening(generate: Callable[[float], Callable[[int, int], np.ndarray]],
         targets[n] = (radial_spectrum(sets)[1],
                       spectrum_mae(radial_spectrum(sets[:half])[1],
                                    radial_spectrum(sets[half:])[1]) / 2)
-    maes: dict[int, dict[float, float]] = {n: {} for n in held_in}
-    for gain in EVEN_GAINS:
-        make = generate(gain)
+    return targets
+
+
+def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
+           held_in: dict[int, np.ndarray]) -> tuple[dict[int, Any], dict[int, dict]]:
+    """The value per size (``off`` where none beats it by more than the noise) and the
+    figures; ``generate(value)`` makes sets (n, count) with that value at every size."""
+    from diffsampler_rt.spectrum import spectrum_mae
+    targets = spectrum_targets(held_in)
+    maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
+    for v in (off, *values):
+        make = generate(v)
         for n in held_in:
-            maes[n][gain] = spectrum_mae(radial_spectrum(make(n, EVEN_SETS))[1], targets[n][0])
-    gains, figures = {}, {}
+            maes[n][v] = spectrum_mae(radial_spectrum(make(n, SEARCH_SETS))[1], targets[n][0])
+    chosen, figures = {}, {}
     for n in held_in:
         best = min(maes[n], key=maes[n].get)
         noise = targets[n][1]
-        gains[n] = best if maes[n][0.0] - maes[n][best] > noise else 0.0
-        figures[n] = {"mae": {f"{g:g}": round(v, 5) for g, v in maes[n].items()},
-                      "noise": round(noise, 5), "gain": gains[n]}
-    return gains, figures
+        chosen[n] = best if maes[n][off] - maes[n][best] > noise else off
+        figures[n] = {"mae": {f"{v:g}": round(m, 5) for v, m in maes[n].items()},
+                      "noise": round(noise, 5), "value": chosen[n]}
+    return chosen, figures
+
+
+def evening(generate, held_in):
+    """:func:`choose` for the even_out gain (candidates :data:`EVEN_GAINS`)."""
+    chosen, figures = choose(tuple(g for g in EVEN_GAINS if g), 0.0, generate, held_in)
+    for f in figures.values():
+        f["gain"] = f.pop("value")
+    return chosen, figures
+
+
+def _insert(pipeline: list[dict], entry: dict, phase: str) -> list[dict]:
+    """``entry`` where its phase runs: noise steps first, point steps after thinning (and
+    after the point steps already chosen), before the minimum spacing."""
+    if phase != "points":
+        return [entry] + pipeline
+    spaced = [i for i, e in enumerate(pipeline) if e["step"] == "min_spacing"]
+    at = spaced[-1] if spaced else len(pipeline)
+    return pipeline[:at] + [entry] + pipeline[at:]
+
+
+def search(model_path, pipeline: list[dict], how: Search, held_in, seed: int,
+           unwarp_sets: Callable[[np.ndarray], np.ndarray]) -> tuple[list[dict], dict]:
+    """The pipeline with ``how``'s step where it helps, and the note of how it was chosen."""
+    import diffsampler_rt
+    from diffsampler_rt.finish import STEPS
+    phase = STEPS[how.step].phase
+    model = diffsampler_rt.Model(model_path)
+
+    def with_value(v: Any) -> list[dict]:
+        return _insert(pipeline, {**how.entry, how.param: v}, phase)
+
+    def generator(v: Any):
+        def make(n: int, count: int) -> np.ndarray:
+            model.card = {**model.card, "pipeline": with_value(v)}
+            return unwarp_sets(model.generate(n, count, seed=seed))
+        return make
+
+    chosen, figures = choose(how.values, how.off, generator, held_in)
+    text = (f"radial spectrum, mean absolute difference from the held-in sets' with "
+            f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
+                f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
+                + f" (noise {f['noise']:.4f}) -> {f['value']:g}"
+                for n, f in sorted(figures.items())))
+    if all(v == how.off for v in chosen.values()):
+        return pipeline, {"step": how.step, "how": text + ": no value beats none by more "
+                          "than the noise, left out"}
+    return with_value(_table(chosen, 3)), {"step": how.step, "how": text + "; the value with "
+                                           "the smallest difference where it beats none by "
+                                           "more than the noise"}
 
 
 def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
               structure_sizes: list[int], *, uniform: bool = True, seed: int = 0,
-              log: Callable[[str], None] = print) -> dict:
+              searches: tuple = SEARCHES, log: Callable[[str], None] = print) -> dict:
     """Choose the finishing steps of the model in ``model_path`` from ``held_in`` sets (by
-    size) and write them into its card; returns the card."""
+    size) and write them into its card; returns the card. ``uniform`` is kept for callers:
+    a model with a density map is calibrated in the square whatever it says."""
     import diffsampler_rt
+    from diffsampler_rt.density import unwarp
+    density = diffsampler_rt.Model(model_path).card.get("density")
+    to_square = (lambda sets: sets) if density is None else (lambda sets: unwarp(sets, density))
+    held_in = {n: to_square(np.asarray(sets, dtype=np.float64)) for n, sets in held_in.items()}
     cs, blue = spacing(held_in)
     notes = [{"step": "min_spacing" if blue else "thin",
               "how": f"{SPACING_PERCENTILE:g}th percentile of the held-in sets' smallest "
@@ -122,32 +212,13 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     pipeline = base_pipeline(entry, cs, blue)
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
-    if uniform and entry is None:
-        thin_at = next(i for i, e in enumerate(pipeline) if e["step"] == "thin")
-
-        def with_even(gain: Any) -> list[dict]:
-            even = {"step": "even_out", "gain": gain, "cut": EVEN_CUT}
-            return pipeline[:thin_at + 1] + [even] + pipeline[thin_at + 1:]
-
-        def generator(gain: float):
-            model = diffsampler_rt.Model(model_path)
-            model.card = {**model.card, "pipeline": with_even(gain)}
-            return lambda n, c: model.generate(n, c, seed=seed)
-
-        gains, figures = evening(generator, held_in)
-        how = ("radial spectrum, mean absolute difference from the held-in sets' with even_out "
-               f"gains {', '.join(f'{g:g}' for g in EVEN_GAINS)}: " + "; ".join(
-                   f"at n = {n}: " + ", ".join(f"{v:.4f}" for v in f["mae"].values())
-                   + f" (noise {f['noise']:.4f}) -> {f['gain']:g}"
-                   for n, f in sorted(figures.items())))
-        if any(gains.values()):
-            pipeline = with_even(_table(gains, 3))
-            notes.append({"step": "even_out", "how": how + "; the gain with the smallest "
-                          "difference where it beats none by more than the noise"})
-        else:
-            notes.append({"step": "even_out", "how": how + ": no gain beats none by more "
-                          "than the noise, no evening"})
-        log("calibration: " + notes[-1]["how"])
+    from diffsampler_rt.finish import STEPS
+    for how in searches:
+        if entry is not None and STEPS[how.step].phase == "points":
+            continue
+        pipeline, note = search(model_path, pipeline, how, held_in, seed, to_square)
+        notes.append(note)
+        log(f"calibration: {how.step}: {note['how']}")
         _write(model_path, pipeline, notes)
     return diffsampler_rt.Model(model_path).card
 

@@ -1,0 +1,194 @@
+"""``python -m trainer calibrate``'s procedure run on every shipped model: the finishing
+steps it chooses from example sets of the model's sampler, beside the steps the model's card
+carries, and what each does to the figures against HELD-OUT sets of the sampler.
+
+    python benchmarks/calibration.py [--models gbn sot ...] [--sets 64]
+
+Per shipped model (its network in models/): held-in and held-out sets of its sampler at its
+trained sizes (64, 256, 1024; fewer sets, or fewer sizes, for the slowest samplers: the
+report says how many), the structure every held-in set has (``trainer.fitting.analysis``),
+then ``trainer.fitting.calibrate.calibrate`` on a copy of the network. Both pipelines make
+sets from the same seeds, compared with the held-out sets by the fit report's figures
+(``trainer.fitting.report.compare``: spectrum and pair-correlation mean absolute difference
+next to their floors, nearest-neighbour and smallest distance, star L2 discrepancy).
+Non-uniform models: every set unwarped by the sampler's exact density map first. Writes
+benchmarks/results/calibration.md and calibration.json; example sets are cached under
+~/.cache/diffsampler/calibration, and the fit benchmark's example files are used where they
+exist.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+RESULTS = ROOT / "benchmarks" / "results"
+from benchmarks.common import cpu_description  # noqa: E402
+SIZES = (64, 256, 1024)
+#: sets a side (held in, held out) where a sampler takes seconds a set: n -> sets
+SLOW_SETS = {"gbn_blob": {64: 32, 256: 16}, "sot_ramp": {64: 32, 256: 32, 1024: 20},
+             "gbn": {64: 64, 256: 64, 1024: 20}, "sot": {64: 64, 256: 32, 1024: 20}}
+FIT_BENCH = Path(os.environ.get("DIFFSAMPLER_CACHE", Path.home() / ".cache" / "diffsampler"))
+
+
+def _fit_bench_sets(sampler: str, n: int) -> np.ndarray | None:
+    """The fit benchmark's example files of ``sampler`` at ``n`` (one 'x y' file a set)."""
+    folder = FIT_BENCH / "fit_bench" / f"{sampler}_examples"
+    files = sorted(folder.glob(f"set_{n}_*.txt"))
+    return np.stack([np.loadtxt(f) for f in files]) if files else None
+
+
+def examples(sampler: str, n: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(held-in, held-out) sets of the sampler, ``count`` each, cached."""
+    from trainer.samplers import sample
+    cache = FIT_BENCH / "calibration" / f"{sampler}_{n}_{count}.npy"
+    if cache.exists():
+        sets = np.load(cache)
+    else:
+        have = _fit_bench_sets(sampler, n)
+        have = have if have is not None else np.empty((0, n, 2))
+        more = max(0, 2 * count - len(have))
+        drawn = sample(sampler, n, count=more, seed=np.random.default_rng([11, n]), workers=1)
+        sets = np.concatenate([have, drawn])[: 2 * count]
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        np.save(cache, sets)
+    return sets[:count], sets[count:]
+
+
+def _square(sampler: str):
+    from trainer.samplers.densities import UNWARP
+    unwarp = UNWARP.get(sampler)
+    return (lambda s: s) if unwarp is None else (lambda s: unwarp(s))
+
+
+def measure(path: Path, held_out: dict[int, np.ndarray], square, seed: int) -> dict:
+    """The figures of the model in ``path`` at each size against the held-out sets."""
+    import diffsampler_rt
+    from trainer.fitting.report import compare
+    model = diffsampler_rt.Model(path)
+    out = {}
+    for n, ref in held_out.items():
+        gen = square(model.generate(n, len(ref), seed=seed))
+        figures, _ = compare(gen, square(ref))
+        out[str(n)] = [{"name": f.name, "generated": f.generated, "reference": f.reference,
+                   "noise": f.noise, "kind": f.kind, "verdict": f.verdict()} for f in figures]
+    return out
+
+
+def run_model(name: str, sets: int, seed: int) -> dict:
+    import diffsampler_rt
+    from diffsampler_rt.finish.pipeline import describe
+    from trainer.fitting.analysis import analyse
+    from trainer.fitting.calibrate import calibrate
+    from trainer.fitting.examples import read_examples
+    entry = diffsampler_rt.model.catalogue()[name]
+    network = ROOT / "models" / f"{entry['network']}.onnx"
+    card = diffsampler_rt.Model(network).card
+    sampler = card["sampler"]
+    counts = SLOW_SETS.get(sampler, {n: sets for n in SIZES})
+    sizes = [n for n in SIZES if n in counts and n in card["trained_sizes"]]
+    t = time.monotonic()
+    split = {n: examples(sampler, n, counts[n]) for n in sizes}
+    held_in = {n: split[n][0] for n in sizes}
+    held_out = {n: split[n][1] for n in sizes}
+    drawn_s = time.monotonic() - t
+    analysis = analyse(read_examples(list(held_in.values())))
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / network.name
+        shutil.copy(network, copy)
+        t = time.monotonic()
+        calibrated = calibrate(copy, held_in, analysis.structure, analysis.structure_sizes,
+                               seed=seed, log=lambda _: None)
+        calibrate_s = time.monotonic() - t
+        square = _square(sampler)
+        figures = {"card": measure(network, held_out, square, seed + 1),
+                   "calibrated": measure(copy, held_out, square, seed + 1)}
+    return {"model": name, "network": entry["network"], "sampler": sampler,
+            "sets": {str(n): counts[n] for n in sizes}, "structure": analysis.structure,
+            "card_pipeline": describe(card["pipeline"]), "card_entries": card["pipeline"],
+            "calibrated_pipeline": describe(calibrated["pipeline"]),
+            "calibrated_entries": calibrated["pipeline"],
+            "notes": calibrated.get("calibration", []), "figures": figures,
+            "examples_s": round(drawn_s), "calibrate_s": round(calibrate_s)}
+
+
+def _cell(f: dict) -> str:
+    if f["kind"] == "curve":
+        return f"{f['generated']:.4f}" + ("" if f["verdict"] == "within noise" else " ✗")
+    rel = 100 * (f["generated"] / f["reference"] - 1) if f["reference"] else float("nan")
+    return f"{rel:+.1f} %" + ("" if f["verdict"] == "within noise" else " ✗")
+
+
+def report(results: list[dict], command: str) -> str:
+    names = ["radial spectrum, mean abs. difference", "pair correlation, mean abs. difference",
+             "mean nearest-neighbour distance x sqrt(n)", "smallest distance x sqrt(n)",
+             "star L2 discrepancy"]
+    lines = ["# Finishing steps: the model cards' against `trainer calibrate`'s", "",
+             f"`{command}` on {cpu_description()} "
+             f"({os.cpu_count()} cores). For each shipped model, the finishing steps "
+             "`python -m trainer calibrate` chooses from held-in sets of its sampler "
+             "(trainer/fitting/calibrate.py: structure, minimum spacing, then the searched "
+             "steps) beside those its card carries, and the figures each gives against "
+             "HELD-OUT sets of the sampler (never calibrated on), same seeds. Curves: mean "
+             "absolute difference, floor in the heading; means: relative difference of the "
+             "mean; ✗: beyond twice its noise (the fit report's verdict). Non-uniform models "
+             "after the exact unwarping.", ""]
+    for r in results:
+        lines += [f"## {r['model']} (network `{r['network']}`, sampler {r['sampler']})", "",
+                  "Sets a side: " + ", ".join(f"{c} at n = {n}" for n, c in r["sets"].items())
+                  + f"; structure found in every held-in set: {r['structure'] or 'none'}; "
+                  f"calibration took {r['calibrate_s']} s.", "",
+                  "| | card | calibrated |", "|---|---|---|"]
+        steps = max(len(r["card_pipeline"]), len(r["calibrated_pipeline"]))
+        for i in range(steps):
+            a = r["card_pipeline"][i] if i < len(r["card_pipeline"]) else ""
+            b = r["calibrated_pipeline"][i] if i < len(r["calibrated_pipeline"]) else ""
+            lines.append(f"| step {i} | {a} | {b} |".replace("\n", " "))
+        lines += ["", "| n | pipeline | " + " | ".join(names) + " |",
+                  "|---|---|" + "---|" * len(names)]
+        for n in r["sets"]:
+            floors = {f["name"]: f["noise"] for f in r["figures"]["card"][n]
+                      if f["kind"] == "curve"}
+            for which in ("card", "calibrated"):
+                figs = r["figures"][which][n]
+                by = {f["name"]: f for f in figs}
+                lines.append(f"| {n} | {which} | " + " | ".join(
+                    _cell(by[k]) + (f" (floor {floors[k]:.4f})" if k in floors and which == "card"
+                                    else "") if k in by else "–" for k in names) + " |")
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    import diffsampler_rt
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", nargs="*", default=diffsampler_rt.list_models())
+    p.add_argument("--sets", type=int, default=64, help="held-in and held-out sets a size")
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args()
+    stored = RESULTS / "calibration.json"
+    results = json.loads(stored.read_text()) if stored.exists() else []
+    for name in a.models:
+        t = time.monotonic()
+        r = run_model(name, a.sets, a.seed)
+        results = [x for x in results if x["model"] != name] + [r]
+        results.sort(key=lambda x: x["model"])
+        stored.write_text(json.dumps(results, indent=1, default=str))
+        print(f"{name}: {time.monotonic() - t:.0f} s", flush=True)
+    command = "python benchmarks/calibration.py" + (f" --sets {a.sets}" if a.sets != 64 else "")
+    (RESULTS / "calibration.md").write_text(report(results, command))
+    print(f"wrote {RESULTS / 'calibration.md'}")
+
+
+if __name__ == "__main__":
+    main()
