@@ -52,6 +52,28 @@ def export_untrained_student(d: Distiller, path):
     return export_checkpoint(save_run(d), path, parity_sides=(8,))[0]
 
 
+def test_net_from_onnx_reads_untrained_group_norms(tmp_path):
+    """A fresh net's GroupNorm constants are all equal (weights 1, biases 0): the exporter
+    stores each once for several layers, and every layer's use is read back (fit --fast on
+    a barely trained teacher failed on it)."""
+    from export.onnx_export import export_model, model_card
+    from trainer.unet import UNet
+    torch.manual_seed(0)
+    cfg = tiny_config()
+    net = UNet(cfg.unet).eval()
+    with torch.no_grad():  # every other tensor made distinct (zero-initialised biases too)
+        for name, p in net.named_parameters():
+            if "norm" not in name:
+                p.add_(0.05 * torch.randn_like(p))
+    assert all(torch.equal(p, torch.ones_like(p)) for n, p in net.named_parameters()
+               if "norm" in n and n.endswith("weight"))
+    path = tmp_path / "fresh.onnx"
+    export_model(net, model_card(cfg, training_steps=0), path, fp16_weights=False)
+    got = net_from_onnx(path)[0].state_dict()
+    for name, value in net.state_dict().items():
+        assert torch.equal(got[name], value), name
+
+
 def test_net_from_onnx_recovers_every_weight(tiny_onnx):
     # the fixture keeps the exported net's state dict next to the file
     ref = torch.load(tiny_onnx.with_suffix(".state"))

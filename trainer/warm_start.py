@@ -20,13 +20,9 @@ from .unet import UNet
 FP16_SUFFIX = "__fp16"
 
 
-def _group_norms(model, net: UNet, found: dict[str, np.ndarray]) -> None:
-    """Recover GroupNorm affine weights, which the exporter folds into (C, 1, 1) constants.
-
-    The decomposed GroupNorm ends in ``Mul(weight)`` then ``Add(bias)``; the graph is in
-    execution order, so the n-th such pair belongs to the n-th GroupNorm the forward
-    pass calls.
-    """
+def _folded_constants(model, every_use: bool) -> list[tuple[str, np.ndarray]]:
+    """The (C, 1, 1) constants the graph's nodes read, in execution order: at each use, or
+    at the first use of each only."""
     from onnx import numpy_helper
 
     inits = {i.name: i for i in model.graph.initializer}
@@ -34,9 +30,20 @@ def _group_norms(model, net: UNet, found: dict[str, np.ndarray]) -> None:
     seen: set[str] = set()
     for node in model.graph.node:
         for name in node.input:
-            if name in inits and name not in seen and len(inits[name].dims) == 3:
+            if name in inits and (every_use or name not in seen) and len(inits[name].dims) == 3:
                 seen.add(name)
                 consts.append((node.op_type, numpy_helper.to_array(inits[name])))
+    return consts
+
+
+def _group_norms(model, net: UNet, found: dict[str, np.ndarray]) -> None:
+    """Recover GroupNorm affine weights, which the exporter folds into (C, 1, 1) constants.
+
+    The decomposed GroupNorm ends in ``Mul(weight)`` then ``Add(bias)``; the graph is in
+    execution order, so the n-th such pair belongs to the n-th GroupNorm the forward
+    pass calls. A barely trained net's equal constants (weights still 1, biases 0) are
+    stored once and read by several layers: they are counted at each use.
+    """
     order: list[str] = []
     hooks = [mod.register_forward_hook(lambda m, i, o, name=name: order.append(name))
              for name, mod in net.named_modules() if isinstance(mod, torch.nn.GroupNorm)]
@@ -44,6 +51,9 @@ def _group_norms(model, net: UNet, found: dict[str, np.ndarray]) -> None:
         net(torch.zeros(1, 2, 8, 8), torch.zeros(1))
     for h in hooks:
         h.remove()
+    consts = _folded_constants(model, every_use=True)
+    if len(consts) != 2 * len(order):  # another constant read twice: count first uses
+        consts = _folded_constants(model, every_use=False)
     if len(consts) != 2 * len(order):
         raise ValueError(f"found {len(consts)} folded norm constants for {len(order)} "
                          "GroupNorm layers")

@@ -15,6 +15,21 @@ STUDENT_STEPS = 6
 TRAJECTORIES = 512
 
 
+def _distiller(cfg, run_dir, device: str):
+    """The first Distiller of a fit's student, or a ValueError that says what to do where the
+    teacher's file cannot be read back into torch (a barely trained net's still-equal
+    initial tensors are stored once for several layers)."""
+    from ..distil import Distiller
+    try:
+        return Distiller(cfg, run_dir, progress=False, device=device)
+    except ValueError as err:
+        if "weights missing" not in str(err):
+            raise
+        raise ValueError(f"{Path(cfg.teacher).name} is trained too briefly to distil (some "
+                         "layers still hold their initial values): fit it for more minutes, "
+                         "then run the same command with --fast") from err
+
+
 def distil(teacher: Path, name: str, out: Path, sides: list[int], minutes: float, *,
            seed: int = 0, threads: int = 1, device: str = "cpu",
            progress: bool = True) -> Path:
@@ -37,7 +52,7 @@ def distil(teacher: Path, name: str, out: Path, sides: list[int], minutes: float
         cfg = DistilConfig.load(saved)
     else:
         with tempfile.TemporaryDirectory() as tmp:  # the trajectories get cached here too
-            probe = Distiller(cfg, tmp, progress=False, device=device)
+            probe = _distiller(cfg, tmp, device)
             probe.train_step()
             t = time.perf_counter()
             for _ in range(2):
