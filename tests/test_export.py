@@ -98,6 +98,7 @@ def test_runtime_loop_matches_a_torch_reference_loop(tiny_onnx):
     np.testing.assert_allclose(got, x.numpy(), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
     import shutil
     import subprocess

@@ -128,6 +128,7 @@ def test_analysis_finds_embedding_uniformity_and_structure():
     assert not ramp.uniform and "NOT uniform" in " ".join(describe(ramp))
 
 
+@pytest.mark.slow
 def test_asserted_invariances_are_checked_against_the_examples():
     ramp = read_examples([drawn("sot_ramp", 64, 32, 2)])
     warned = analyse(ramp, symmetries=[1, 2])
@@ -194,10 +195,10 @@ def test_a_searched_step_runs_where_its_phase_does_and_only_where_it_helps():
         "coarse_noise"
     assert [e["step"] for e in _insert(pipe, {"step": "even_out", "gain": 0.5}, "points")] == [
         "thin", "even_out", "min_spacing"]  # the spacing stays last
-    examples = {64: drawn("poisson_disk", 64, 32, 2), 256: drawn("poisson_disk", 256, 32, 2)}
+    examples = {64: drawn("poisson_disk", 64, 32, 2)}
     same = lambda v: lambda n, c: drawn("poisson_disk", n, 64, 7)[:c]  # noqa: E731
     chosen, figures = choose((2, 5), 0, same, examples)
-    assert chosen == {64: 0, 256: 0} and set(figures[64]["mae"]) == {"0", "2", "5"}
+    assert chosen == {64: 0} and set(figures[64]["mae"]) == {"0", "2", "5"}
 
 
 def test_a_density_model_is_calibrated_in_the_square(tiny_onnx, tmp_path):

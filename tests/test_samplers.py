@@ -146,6 +146,7 @@ def test_ramp_cdf_is_exact():
     assert ramp_cdf(np.array([lo, hi]), th) == pytest.approx([0, 1], abs=1e-14)
 
 
+@pytest.mark.slow
 def test_non_uniform_samplers_follow_their_density():
     ramp = sample("sot_ramp", 64, count=2, seed=0)
     assert abs(ramp[..., 0].mean() - 2 / 3) < 0.01 and abs(ramp[..., 1].mean() - 0.5) < 0.01
