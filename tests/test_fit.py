@@ -127,6 +127,16 @@ def test_analysis_finds_embedding_uniformity_and_structure():
     ramp = analyse(read_examples([drawn("sot_ramp", 64, 32, 2)]))
     assert not ramp.uniform and "NOT uniform" in " ".join(describe(ramp))
 
+def test_a_structure_that_starts_at_some_size_is_found_from_there():
+    """LDBN's sets have stratified projections from k = 16 on, not at k = 8."""
+    from trainer.fitting.analysis import common_structure
+    ldbn = read_examples([sample("ldbn", 64, count=8, seed=1), sample("ldbn", 256, count=8, seed=1)])
+    assert common_structure(ldbn, True) == ("n_rooks", [256])
+    # a structure only at a smaller size than some other example size is none
+    mixed = read_examples([sample("ldbn", 256, count=8, seed=1),
+                           np.random.default_rng(0).random((8, 1024, 2))])
+    assert common_structure(mixed, True) == (None, [])
+
 
 @pytest.mark.slow
 def test_asserted_invariances_are_checked_against_the_examples():

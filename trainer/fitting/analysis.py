@@ -89,13 +89,17 @@ def _structure_holds(name: str, sets: np.ndarray) -> bool:
 
 def common_structure(ex: Examples, stratified: bool) -> tuple[str | None, list[int]]:
     """The strongest structure every example set has (a (0, m, 2)-net, stratified
-    projections, a rank-1 lattice), and the sizes it was checked at; None if none."""
+    projections, a rank-1 lattice) at every example size from some size up, and those
+    sizes; None if none. A sampler whose structure starts at some grid size (LDBN's
+    stratified projections) gets it from there: the step's smallest side."""
     for name in STRUCTURES:
         if name != "rank1_lattice" and not stratified:
             continue
         sizes = [n for n in ex.sizes if name != "dyadic_net" or n & (n - 1) == 0]
-        if sizes and all(_structure_holds(name, s) for n in sizes for s in ex.iter_sets(n)):
-            return name, sizes
+        holds = [n for n in sizes
+                 if all(_structure_holds(name, s) for s in ex.iter_sets(n))]
+        if holds and holds == sizes[len(sizes) - len(holds):]:  # every size from one up
+            return name, holds
     return None, []
 
 
@@ -187,7 +191,7 @@ def describe(a: Analysis) -> list[str]:
              f"4 x 4 bin's mean count {100 * a.intensity_deviation:.1f} %, p = "
              f"{a.intensity_p:.2g})" + ("" if a.uniform else
                                         ": the net learns the sets mapped to the square"),
-             "structure every set has: " + (f"{a.structure} (checked at n = "
+             "structure every set has: " + (f"{a.structure} (every set at n = "
                                             f"{', '.join(map(str, a.structure_sizes))})"
                                             if a.structure else "none"),
              f"augmentations: symmetries {a.symmetries}"

@@ -18,8 +18,10 @@
    but disturbs the pattern pays for it). A size gets the candidate with the smallest
    difference where it beats the pipeline without the step by more than the difference's
    noise (half that between two halves of the held-in sets), else none; a step no size
-   gets is left out. Steps acting on the points are not searched where a structure step
-   holds (they would move points off it).
+   gets is left out. A value whose sets' star L2 discrepancy is further from the held-in
+   sets' than without the step (beyond two standard errors) is not taken. Steps acting on
+   the points are not searched where a structure step holds (they would move points off
+   it).
 
 A model with a density map (non-uniform examples) is calibrated in the uniform square: the
 held-in sets and the model's sets are unwarped by its map first, where its point steps act.
@@ -119,20 +121,34 @@ def spectrum_targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarr
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
            held_in: dict[int, np.ndarray]) -> tuple[dict[int, Any], dict[int, dict]]:
     """The value per size (``off`` where none beats it by more than the noise) and the
-    figures; ``generate(value)`` makes sets (n, count) with that value at every size."""
+    figures; ``generate(value)`` makes sets (n, count) with that value at every size. A value
+    whose sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s,
+    by more than two standard errors, is not taken: the spectrum alone would trade away
+    the sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
     from diffsampler_rt.spectrum import spectrum_mae
+    from trainer.stats.discrepancy import l2_star
     targets = spectrum_targets(held_in)
+    ref_l2 = {n: float(l2_star(sets).mean()) for n, sets in held_in.items()}
     maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
+    l2s: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
-            maes[n][v] = spectrum_mae(radial_spectrum(make(n, SEARCH_SETS))[1], targets[n][0])
+            sets = make(n, SEARCH_SETS)
+            maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], targets[n][0])
+            l2s[n][v] = l2_star(sets)
     chosen, figures = {}, {}
     for n in held_in:
-        best = min(maes[n], key=maes[n].get)
+        miss = {v: abs(float(l2.mean()) - ref_l2[n]) for v, l2 in l2s[n].items()}
+        se = {v: math.sqrt(l2.var(ddof=1) / len(l2) + l2s[n][off].var(ddof=1) / len(l2))
+              for v, l2 in l2s[n].items()}
+        fair = [v for v in maes[n] if miss[v] <= miss[off] + 2 * se[v]]
+        best = min(fair, key=maes[n].get)
         noise = targets[n][1]
         chosen[n] = best if maes[n][off] - maes[n][best] > noise else off
         figures[n] = {"mae": {f"{v:g}": round(m, 5) for v, m in maes[n].items()},
+                      "l2_star": {f"{v:g}": round(float(l2.mean()) / ref_l2[n] - 1, 4)
+                                  for v, l2 in l2s[n].items()},
                       "noise": round(noise, 5), "value": chosen[n]}
     return chosen, figures
 
@@ -176,7 +192,9 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, seed: int,
     text = (f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
-                + f" (noise {f['noise']:.4f}) -> {f['value']:g}"
+                + f" (noise {f['noise']:.4f}; star L2 "
+                + ", ".join(f"{100 * d:+.1f} %" for d in f["l2_star"].values())
+                + f") -> {f['value']:g}"
                 for n, f in sorted(figures.items())))
     if all(v == how.off for v in chosen.values()):
         return pipeline, {"step": how.step, "how": text + ": no value beats none by more "
@@ -207,8 +225,8 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
                         f" (below {BLUE_NOISE}: no spacing, random thinning)")}]
     entry = structure_entry(structure, structure_sizes)
     if entry:
-        notes.append({"step": entry["step"], "how": "every example set has it (checked at "
-                      f"n = {', '.join(map(str, structure_sizes))})"})
+        notes.append({"step": entry["step"], "how": "every example set has it at "
+                      f"n = {', '.join(map(str, structure_sizes))} (from the smallest on)"})
     pipeline = base_pipeline(entry, cs, blue)
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
