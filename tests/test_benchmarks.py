@@ -56,7 +56,7 @@ def test_fidelity_report_runs(tmp_path):
     r["rows"]["64"]["min_distance"]["gen_sets"][0] *= 1.01
     kept.write_text(json.dumps(r))
     res = subprocess.run(merge, capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
-    assert res.returncode != 0 and "n = 64 is not reproduced" in res.stderr
+    assert res.returncode != 0 and "rows at n = 64 are not reproduced" in res.stderr
     assert "sobol_owen n=256" not in res.stdout  # refused before any size was measured
     # --check-kept finds that row (as after a runtime change) and the report says so
     res = subprocess.run(merge[:4] + ["--check-kept", "--out", str(tmp_path / "out")],
