@@ -48,10 +48,35 @@ def bundled_copy(tmp_path):
     return copy
 
 
+#: what the tiny_onnx fixture's file depends on: a change to any of them makes it anew
+TINY_ONNX_SOURCES = ("trainer/unet.py", "trainer/config.py", "export/onnx_export.py",
+                     "diffsampler_rt/card.py", "tests/conftest.py")
+
+
+def _tiny_onnx_key() -> str:
+    import hashlib
+
+    import torch
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256(torch.__version__.encode())
+    for name in TINY_ONNX_SOURCES:
+        h.update((root / name).read_bytes())
+    return h.hexdigest()[:16]
+
+
 @pytest.fixture(scope="session")
 def tiny_onnx(tmp_path_factory) -> Path:
-    """A small random U-Net (all attention kinds) exported with a valid model card (fp16 weights)."""
+    """A small random U-Net (all attention kinds) exported with a valid model card (fp16
+    weights). The export takes ~20 s, so the file is kept in the cache
+    (``$DIFFSAMPLER_CACHE/test_fixtures``) under a digest of the code that makes it."""
     torch = pytest.importorskip("torch")
+    from trainer.data import cache_dir
+    path = tmp_path_factory.mktemp("onnx") / "tiny.onnx"
+    kept = cache_dir() / "test_fixtures" / f"tiny-{_tiny_onnx_key()}.onnx"
+    if kept.exists() and kept.with_suffix(".state").exists():
+        shutil.copy(kept, path)
+        shutil.copy(kept.with_suffix(".state"), path.with_suffix(".state"))
+        return path
     from export.onnx_export import export_model, model_card, round_to_fp16
     from trainer.unet import UNet
 
@@ -62,9 +87,13 @@ def tiny_onnx(tmp_path_factory) -> Path:
         for p in net.parameters():
             p.add_(0.05 * torch.randn_like(p))
     round_to_fp16(net)
-    path = tmp_path_factory.mktemp("onnx") / "tiny.onnx"
     export_model(net, model_card(cfg, training_steps=0), path, fp16_weights=True)
     torch.save(net.state_dict(), path.with_suffix(".state"))
+    kept.parent.mkdir(parents=True, exist_ok=True)
+    for src, dst in ((path, kept), (path.with_suffix(".state"), kept.with_suffix(".state"))):
+        part = dst.with_name(dst.name + ".partial")  # never a half-written file in the cache
+        shutil.copy(src, part)
+        part.replace(dst)
     return path
 
 

@@ -152,6 +152,7 @@ def _without_coarse_noise(m):
     m.card["pipeline"] = [e for e in m.card["pipeline"] if e["step"] != "coarse_noise"]
 
 
+@pytest.mark.slow
 def test_a_gain_above_one_adds_large_scale_variation():
     """The point of the knob: on the bundled ldbn net, a gain of 1.5 on the coarse quarter of
     the grid's frequencies (below 0.125 sqrt(n) in the radial spectrum's units) raises the

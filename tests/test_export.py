@@ -6,6 +6,8 @@ import pytest
 torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 
+pytestmark = pytest.mark.slow  # the exported fixture alone takes ~20 s
+
 import diffsampler_rt  # noqa: E402
 from diffsampler_rt.card import CARD_KEY  # noqa: E402
 from diffsampler_rt.schedule import alphas_cumprod  # noqa: E402
@@ -98,7 +100,6 @@ def test_runtime_loop_matches_a_torch_reference_loop(tiny_onnx):
     np.testing.assert_allclose(got, x.numpy(), atol=1e-4)
 
 
-@pytest.mark.slow
 def test_set_defaults_changes_what_generate_uses(tiny_onnx, tmp_path):
     import shutil
     import subprocess

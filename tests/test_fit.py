@@ -211,6 +211,7 @@ def test_a_searched_step_runs_where_its_phase_does_and_only_where_it_helps():
     assert chosen == {64: 0} and set(figures[64]["mae"]) == {"0", "2", "5"}
 
 
+@pytest.mark.slow
 def test_a_density_model_is_calibrated_in_the_square(tiny_onnx, tmp_path):
     """The held-in sets are unwarped by the model's map, so the spacing is the square's."""
     import shutil
@@ -319,6 +320,7 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
     assert not list(out.glob("*.partial*"))
 
 
+@pytest.mark.slow
 @pytest.mark.slow
 def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_path, capsys):
     import shutil

@@ -100,6 +100,7 @@ def test_bad_input_is_refused():
         rank1_lattice(64, 6)
 
 
+@pytest.mark.slow
 def test_card_structure_at_every_side(tiny_onnx, tmp_path):
     from export.pipeline_edit import edit_pipeline
     path = tmp_path / "m.onnx"
@@ -175,6 +176,7 @@ def test_docstring_examples():
     assert doctest.testmod(lattice).failed == 0
 
 
+@pytest.mark.slow
 def test_pipeline_cli_lattice_structure(tiny_onnx, tmp_path, capsys):
     from export.__main__ import main
     path = tmp_path / "m.onnx"
