@@ -304,7 +304,9 @@ def test_the_fast_step_keeps_no_buffers_once_it_returns():
             after, peak = tracemalloc.get_traced_memory()
         finally:
             tracemalloc.stop()
-        assert peak - before > 4 << 20  # the buffers were made
+        # the buffers were made: at least the float32 projections of the 4 sets of 4096
+        # points on 32 directions (2 MiB), whatever the thread split
+        assert peak - before >= 4 * 4096 * 32 * 4
         assert after - before - out.nbytes < 1 << 20  # and are gone
 
 

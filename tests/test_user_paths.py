@@ -99,7 +99,11 @@ def test_interrupted_generation_ends_in_one_line_and_leaves_no_file(tmp_path, si
     proc = subprocess.Popen([sys.executable, "-m", "diffsampler_rt", "generate", "gbn_fast",
                              "1024", "--count", "100000", "-o", str(out)],
                             stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+                            env={**os.environ, "OMP_NUM_THREADS": "1"},
+                            # a terminal's defaults, whatever an earlier test (or torch's
+                            # elastic launcher) left this process ignoring
+                            preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL)
+                                                for s in (signal.SIGINT, signal.SIGTERM)])
     deadline = time.monotonic() + 60
     while not out.with_name("sets.txt.partial").exists() and time.monotonic() < deadline:
         time.sleep(0.1)
