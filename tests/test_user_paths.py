@@ -104,12 +104,16 @@ def test_interrupted_generation_ends_in_one_line_and_leaves_no_file(tmp_path, si
                             # elastic launcher) left this process ignoring
                             preexec_fn=lambda: [signal.signal(s, signal.SIG_DFL)
                                                 for s in (signal.SIGINT, signal.SIGTERM)])
-    deadline = time.monotonic() + 60
-    while not out.with_name("sets.txt.partial").exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    time.sleep(0.5)
-    proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
+    try:
+        deadline = time.monotonic() + 60
+        while not out.with_name("sets.txt.partial").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(0.5)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:  # a child that did not stop must not run on after the test
+        proc.kill()
+        proc.wait()
     assert proc.returncode == code
     assert err.strip() == "diffsampler: interrupted"
     assert list(tmp_path.iterdir()) == []
