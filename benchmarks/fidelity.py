@@ -63,14 +63,14 @@ from trainer.stats import (Gaussians, Heavisides, empty_elementary_fraction,  # 
 SIZES = (64, 256, 576, 1024, 4096)
 #: the sizes whose spectra a model's plot shows; its example sets come from the first measured
 PLOT_SIZES = (1024, 4096)
-#: issue 4: at most half of the seed paper's own net's spectrum MAE at n = 1024
+#: the zoo's target: at most half of the seed paper's own net's spectrum MAE at n = 1024
 TARGET_MAE = {"poisson_disk": 0.055, "gbn": 0.032, "sot": 0.007, "sot_32": 0.007,
               "ldbn": 0.006, "sobol_owen": 0.004, "rank1": 0.17, "lattice": 0.17}
 
 
 def target_mae(name: str) -> float | None:
     """The spectrum target of a network: its own, or for a distilled student
-    (``<base>_fast``) its base model's (issue 5 holds the students to the zoo's targets)."""
+    (``<base>_fast``) its base model's (the students are held to the zoo's targets)."""
     return TARGET_MAE.get(name, TARGET_MAE.get(name.removesuffix("_fast")))
 
 

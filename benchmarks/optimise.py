@@ -31,7 +31,7 @@ zoo.use()  # model names are the repository's networks (models/), not the wheel'
 from benchmarks.common import cached_sets  # noqa: E402
 from trainer.stats import l2_star, ot_energy  # noqa: E402
 
-#: issue 6: mean L2* at least 30 % below plain SOT, OT energy within 10 % of plain SOT
+#: the target: mean L2* at least 30 % below plain SOT, OT energy within 10 % of plain SOT
 MAX_L2_RATIO, OT_TOL = 0.70, 0.10
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = (256, 1024, 4096, 16384, 65536)
-#: issue 5 targets at n = 1024 (2 cores): amortised over a batch of 32, and alone
+#: the speed targets at n = 1024 (2 cores): amortised over a batch of 32, and alone
 TARGET_BATCH_MS, TARGET_ALONE_MS = 50.0, 150.0
 
 
@@ -40,7 +40,7 @@ def batch_for(n: int, batch: int) -> int:
 def _peak_mib() -> float:
     """This process's peak resident memory. Linux's ru_maxrss survives exec, so a child
     would report its parent's size at the fork if that was larger (the parent that had
-    loaded every model did: 297-356 MiB "peaks" of 1024-point runs in session 67); the
+    loaded every model did: 297-356 MiB "peaks" of 1024-point runs in an earlier version); the
     kernel's VmHWM belongs to the process's own address space."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():

@@ -401,7 +401,7 @@ def test_fidelity_holds_each_student_to_its_base_models_spectrum_target():
     assert target_mae("sot_32") == TARGET_MAE["sot_32"] == 0.007
     assert target_mae("sot_32_fast") == 0.007 and target_mae("ldbn_fast") == 0.006
     assert target_mae("sot_fast") == TARGET_MAE["sot"]  # not sot_32's: the longest name
-    # no target where issue 4 sets none: the torus, blob and ramp variants and their students
+    # no target where the zoo sets none: the torus, blob and ramp variants and their students
     assert target_mae("gbn_torus_fast") is None and target_mae("sot_ramp") is None
 
 

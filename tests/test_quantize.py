@@ -241,7 +241,7 @@ def test_wrap_pads_feeding_8_bit_convolutions_are_copied_channels_last(circular_
     assert count > 0
     record = diffsampler_rt.load(q).card["quantization"]["wrap_pads"]
     assert record.endswith(f"all as Slice and Concat; {count} of them copied channels-last")
-    # the same file quantised as before session 70, then rewritten: exactly q's outputs
+    # the same file with its pads quantised in place, then rewritten: exactly q's outputs
     with monkeypatch.context() as patch:
         patch.setattr(quantize_module, "wrap_pads_channels_last", lambda model: 0)
         quantize(f, tmp_path / "plain.onnx", sets=2, seed=0)
