@@ -38,20 +38,21 @@ SIZES = (64, 256, 1024)
 #: sets a side (held in, held out) where a sampler takes seconds a set: n -> sets
 SLOW_SETS = {"gbn_blob": {64: 32, 256: 16}, "sot_ramp": {64: 32, 256: 32, 1024: 20},
              "gbn": {64: 64, 256: 64, 1024: 20}, "sot": {64: 64, 256: 32, 1024: 20}}
-FIT_BENCH = Path(os.environ.get("DIFFSAMPLER_CACHE", Path.home() / ".cache" / "diffsampler"))
 
 
 def _fit_bench_sets(sampler: str, n: int) -> np.ndarray | None:
     """The fit benchmark's example files of ``sampler`` at ``n`` (one 'x y' file a set)."""
-    folder = FIT_BENCH / "fit_bench" / f"{sampler}_examples"
+    from trainer.data import cache_dir
+    folder = cache_dir() / "fit_bench" / f"{sampler}_examples"
     files = sorted(folder.glob(f"set_{n}_*.txt"))
     return np.stack([np.loadtxt(f) for f in files]) if files else None
 
 
 def examples(sampler: str, n: int, count: int) -> tuple[np.ndarray, np.ndarray]:
     """(held-in, held-out) sets of the sampler, ``count`` each, cached."""
+    from trainer.data import cache_dir
     from trainer.samplers import sample
-    cache = FIT_BENCH / "calibration" / f"{sampler}_{n}_{count}.npy"
+    cache = cache_dir() / "calibration" / f"{sampler}_{n}_{count}.npy"
     if cache.exists():
         sets = np.load(cache)
     else:

@@ -72,6 +72,13 @@ def test_net_from_onnx_reads_untrained_group_norms(tmp_path):
     got = net_from_onnx(path)[0].state_dict()
     for name, value in net.state_dict().items():
         assert torch.equal(got[name], value), name
+    # an untouched net's zero biases are stored once too: refused with a typed error, which
+    # fit --fast turns into "fit longer"
+    from trainer.warm_start import MissingWeightsError
+    export_model(UNet(cfg.unet).eval(), model_card(cfg, training_steps=0),
+                 tmp_path / "untouched.onnx", fp16_weights=False)
+    with pytest.raises(MissingWeightsError, match="weights missing"):
+        net_from_onnx(tmp_path / "untouched.onnx")
 
 
 def test_net_from_onnx_recovers_every_weight(tiny_onnx):

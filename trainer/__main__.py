@@ -250,7 +250,7 @@ def _calibrate(args: argparse.Namespace) -> None:
     analysis = analyse(ex)
     held_in = {n: np.concatenate(list(ex.iter_sets(n)))[:1024] for n in ex.sizes}
     card = calibrate(model.path, held_in, analysis.structure, analysis.structure_sizes,
-                     uniform=analysis.uniform and "density" not in model.card, seed=args.seed)
+                     seed=args.seed)
     from diffsampler_rt.finish.pipeline import describe
     for i, line in enumerate(describe(card["pipeline"])):
         print(f"{i}. {line}")

@@ -20,6 +20,11 @@ from .unet import UNet
 FP16_SUFFIX = "__fp16"
 
 
+class MissingWeightsError(ValueError):
+    """The file holds no tensor for some of the network's parameters (the exporter stores
+    equal tensors once: a barely trained net's still-equal initial weights share one)."""
+
+
 def _folded_constants(model, every_use: bool) -> list[tuple[str, np.ndarray]]:
     """The (C, 1, 1) constants the graph's nodes read, in execution order: at each use, or
     at the first use of each only."""
@@ -95,7 +100,7 @@ def net_from_onnx(path: str | Path) -> tuple[UNet, TrainConfig, dict[str, Any]]:
     _group_norms(model, net, found)
     missing = sorted(set(wanted) - set(found))
     if missing:
-        raise ValueError(f"{path}: weights missing for {len(missing)} parameters "
+        raise MissingWeightsError(f"{path}: weights missing for {len(missing)} parameters "
                          f"(first: {missing[:3]})")
     state = {}
     for name, ref in wanted.items():

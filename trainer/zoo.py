@@ -32,7 +32,7 @@ def use() -> None:
     """Bare names resolve to the repository's networks first, in this process and the
     processes it starts (the runtime's ``DIFFSAMPLER_MODELS`` search path): the benchmarks
     measure networks by these names, not the wheel's one-per-sampler copies."""
-    from diffsampler_rt.model import MODELS_ENV
-    folders = [p for p in os.environ.get(MODELS_ENV, "").split(os.pathsep) if p]
+    from diffsampler_rt.model import MODELS_ENV, search_path
+    folders = [str(p) for p in search_path()]
     if str(ZOO_DIR) not in folders:
         os.environ[MODELS_ENV] = os.pathsep.join([str(ZOO_DIR), *folders])

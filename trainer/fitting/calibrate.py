@@ -65,8 +65,8 @@ SEARCHES = (
     Search({"step": "sliced_ot", "directions": 128}, "iterations", (2, 5, 12, 24), 0),
     Search({"step": "even_out", "cut": 0.5}, "gain", (-0.5, -0.25, 0.25, 0.5, 0.75, 0.9), 0.0),
 )
-#: the evening's candidates with "off" (the gains the fit report names)
-EVEN_GAINS = (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 0.9)
+#: the evening's candidates with "off"
+EVEN_GAINS = tuple(sorted((SEARCHES[-1].off, *SEARCHES[-1].values)))
 
 
 def _table(values: dict[int, float], digits: int = 4) -> Any:
@@ -105,49 +105,53 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
             {**spaced, "where": "unstructured"}]
 
 
-def spectrum_targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float]]:
-    """Per size: the held-in sets' mean radial spectrum, and the noise of a difference from
-    it (half the mean absolute difference between the two halves' spectra)."""
+def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float, float]]:
+    """Per size: the held-in sets' mean radial spectrum, the noise of a difference from it
+    (half the mean absolute difference between the two halves' spectra), and their mean
+    star L2 discrepancy. Computed once per calibration: every search compares with them."""
     from diffsampler_rt.spectrum import spectrum_mae
-    targets = {}
+    from trainer.stats.discrepancy import l2_star
+    out = {}
     for n, sets in held_in.items():
         half = len(sets) // 2
-        targets[n] = (radial_spectrum(sets)[1],
-                      spectrum_mae(radial_spectrum(sets[:half])[1],
-                                   radial_spectrum(sets[half:])[1]) / 2)
-    return targets
+        out[n] = (radial_spectrum(sets)[1],
+                  spectrum_mae(radial_spectrum(sets[:half])[1],
+                               radial_spectrum(sets[half:])[1]) / 2,
+                  float(l2_star(sets).mean()))
+    return out
 
 
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
-           held_in: dict[int, np.ndarray]) -> tuple[dict[int, Any], dict[int, dict]]:
+           held_in: dict[int, np.ndarray], goal: dict | None = None
+           ) -> tuple[dict[int, Any], dict[int, dict]]:
     """The value per size (``off`` where none beats it by more than the noise) and the
-    figures; ``generate(value)`` makes sets (n, count) with that value at every size. A value
+    figures; ``generate(value)`` makes sets (n, count) with that value at every size;
+    ``goal`` is :func:`targets` of ``held_in`` where the caller has it already. A value
     whose sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s,
     by more than two standard errors, is not taken: the spectrum alone would trade away
     the sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
     from diffsampler_rt.spectrum import spectrum_mae
     from trainer.stats.discrepancy import l2_star
-    targets = spectrum_targets(held_in)
-    ref_l2 = {n: float(l2_star(sets).mean()) for n, sets in held_in.items()}
+    goal = goal or targets(held_in)
     maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
     l2s: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
             sets = make(n, SEARCH_SETS)
-            maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], targets[n][0])
+            maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], goal[n][0])
             l2s[n][v] = l2_star(sets)
     chosen, figures = {}, {}
     for n in held_in:
-        miss = {v: abs(float(l2.mean()) - ref_l2[n]) for v, l2 in l2s[n].items()}
+        _, noise, ref_l2 = goal[n]
+        miss = {v: abs(float(l2.mean()) - ref_l2) for v, l2 in l2s[n].items()}
         se = {v: math.sqrt(l2.var(ddof=1) / len(l2) + l2s[n][off].var(ddof=1) / len(l2))
               for v, l2 in l2s[n].items()}
         fair = [v for v in maes[n] if miss[v] <= miss[off] + 2 * se[v]]
         best = min(fair, key=maes[n].get)
-        noise = targets[n][1]
         chosen[n] = best if maes[n][off] - maes[n][best] > noise else off
         figures[n] = {"mae": {f"{v:g}": round(m, 5) for v, m in maes[n].items()},
-                      "l2_star": {f"{v:g}": round(float(l2.mean()) / ref_l2[n] - 1, 4)
+                      "l2_star": {f"{v:g}": round(float(l2.mean()) / ref_l2 - 1, 4)
                                   for v, l2 in l2s[n].items()},
                       "noise": round(noise, 5), "value": chosen[n]}
     return chosen, figures
@@ -171,7 +175,7 @@ def _insert(pipeline: list[dict], entry: dict, phase: str) -> list[dict]:
     return pipeline[:at] + [entry] + pipeline[at:]
 
 
-def search(model_path, pipeline: list[dict], how: Search, held_in, seed: int,
+def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, seed: int,
            unwarp_sets: Callable[[np.ndarray], np.ndarray]) -> tuple[list[dict], dict]:
     """The pipeline with ``how``'s step where it helps, and the note of how it was chosen."""
     import diffsampler_rt
@@ -188,7 +192,7 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, seed: int,
             return unwarp_sets(model.generate(n, count, seed=seed))
         return make
 
-    chosen, figures = choose(how.values, how.off, generator, held_in)
+    chosen, figures = choose(how.values, how.off, generator, held_in, goal)
     text = (f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
@@ -205,11 +209,11 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, seed: int,
 
 
 def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
-              structure_sizes: list[int], *, uniform: bool = True, seed: int = 0,
-              searches: tuple = SEARCHES, log: Callable[[str], None] = print) -> dict:
+              structure_sizes: list[int], *, seed: int = 0, searches: tuple = SEARCHES,
+              log: Callable[[str], None] = print) -> dict:
     """Choose the finishing steps of the model in ``model_path`` from ``held_in`` sets (by
-    size) and write them into its card; returns the card. ``uniform`` is kept for callers:
-    a model with a density map is calibrated in the square whatever it says."""
+    size) and write them into its card; returns the card. A model with a density map is
+    calibrated in the square, its held-in sets unwarped by that map."""
     import diffsampler_rt
     from diffsampler_rt.density import unwarp
     density = diffsampler_rt.Model(model_path).card.get("density")
@@ -231,10 +235,11 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
     from diffsampler_rt.finish import STEPS
+    goal = targets(held_in) if searches else {}
     for how in searches:
         if entry is not None and STEPS[how.step].phase == "points":
             continue
-        pipeline, note = search(model_path, pipeline, how, held_in, seed, to_square)
+        pipeline, note = search(model_path, pipeline, how, held_in, goal, seed, to_square)
         notes.append(note)
         log(f"calibration: {how.step}: {note['how']}")
         _write(model_path, pipeline, notes)

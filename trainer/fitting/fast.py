@@ -20,11 +20,10 @@ def _distiller(cfg, run_dir, device: str):
     teacher's file cannot be read back into torch (a barely trained net's still-equal
     initial tensors are stored once for several layers)."""
     from ..distil import Distiller
+    from ..warm_start import MissingWeightsError
     try:
         return Distiller(cfg, run_dir, progress=False, device=device)
-    except ValueError as err:
-        if "weights missing" not in str(err):
-            raise
+    except MissingWeightsError as err:
         raise ValueError(f"{Path(cfg.teacher).name} is trained too briefly to distil (some "
                          "layers still hold their initial values): fit it for more minutes, "
                          "then run the same command with --fast") from err

@@ -251,7 +251,7 @@ def _calibrate_and_report(model: Path, held_in, ex, sp, analysis, seed: int, log
     from .calibrate import calibrate
     from .evaluate import report
     card = calibrate(model, held_in, analysis.structure, analysis.structure_sizes,
-                     uniform=analysis.uniform, seed=seed, log=log)
+                     seed=seed, log=log)
     md, png = report(model, ex, sp, analysis, model.with_suffix(".report.md"), extra=[note])
     log(f"wrote {model}, {md}, {png}")
     return FitResult(model, md, png, card)
