@@ -4,6 +4,7 @@ resumption, data-parallel training, and one small fit end to end."""
 from __future__ import annotations
 
 import functools
+import math
 import re
 
 import numpy as np
@@ -167,18 +168,37 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
     from trainer.fitting.calibrate import base_pipeline, spacing
     from trainer.stats.distance import spacing_coefficient
     blue = {64: drawn("poisson_disk", 64, 32, 2)}
-    cs, is_blue = spacing(blue)
+    cs, is_blue, _ = spacing(blue)
     assert is_blue and cs[64] == pytest.approx(spacing_coefficient(blue[64], 5.0))
     assert base_pipeline(None, cs, True) == [{"step": "thin", "drop": "crowded"},
                                              {"step": "min_spacing", "c": round(cs[64], 4)}]
     white = {256: np.random.default_rng(0).random((40, 256, 2))}
-    cs, is_blue = spacing(white)
+    cs, is_blue, _ = spacing(white)
     assert not is_blue and base_pipeline(None, cs, False) == [{"step": "thin", "drop": "random"}]
+    assert not spacing({1024: thomas(8, 1024, 1)})[1]
+    assert not spacing({256: jittered(256, 40, 1)})[1]
     # with a structure the spacing comes before it where it holds, after thinning elsewhere
     pipe = base_pipeline({"step": "n_rooks", "min_side": 16}, {256: 0.7}, True)
     assert [(e["step"], e.get("where")) for e in pipe] == [
         ("min_spacing", "structured"), ("n_rooks", None), ("thin", None),
         ("min_spacing", "unstructured")]
+
+
+def test_a_soft_core_is_blue_noise_at_every_size():
+    """A lattice with Gaussian jitter: its smallest distance per set sinks with n (c below
+    0.3 at 1024, where 0.3 at 64), its points' nearest-neighbour distances do not."""
+    from trainer.fitting.calibrate import spacing
+
+    def perturbed(n: int, count: int) -> np.ndarray:
+        k, rng = math.isqrt(n), np.random.default_rng(n)
+        i, j = np.meshgrid(np.arange(k), np.arange(k))
+        rows = np.stack([(i + 0.5 * (j % 2)) / k, j / k], -1).reshape(-1, 2)
+        pts = (rows + rng.random((count, 1, 2)) + rng.normal(0, 0.15 / k, (count, n, 2))) % 1
+        return np.where(pts >= 1, 0, pts)
+
+    cs, is_blue, core = spacing({n: perturbed(n, 24) for n in (64, 1024)})
+    assert cs[1024] < 0.3 < cs[64] and is_blue
+    assert all(0.4 < v < 0.55 for v in core.values())
 
 
 def test_evening_gain_is_the_one_whose_spectrum_comes_closest():

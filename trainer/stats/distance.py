@@ -1,4 +1,4 @@
-"""Minimum pairwise distances."""
+"""Minimum and nearest-neighbour distances."""
 from __future__ import annotations
 
 import numpy as np
@@ -34,6 +34,24 @@ def spacing_coefficient(points: np.ndarray, percentile: float = 5.0, *,
     smallest = min_distance(pts)
     value = smallest.mean() if mean else np.percentile(smallest, percentile)
     return float(value * np.sqrt(pts.shape[-2]))
+
+
+def nearest_neighbour_percentile(points: np.ndarray, percentile: float = 1.0) -> float:
+    """The ``percentile`` of every point's nearest-neighbour distance (pooled over the sets
+    (..., n, 2), Euclidean), times sqrt(n): how close the closest points come, in units of
+    the mean spacing.
+
+    Unlike a set's smallest distance, which sinks with n for any process without a hard
+    core, this is a property of the process: about 0.057 at the 1st percentile for uniform
+    random points at every n, 0.16 for jittered grids, 0.45-0.75 for dart throwing,
+    relaxed sets and perturbed lattices.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if not 0 <= percentile <= 100:
+        raise ValueError(f"percentile must be in [0, 100], got {percentile}")
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    d = np.concatenate([cKDTree(p).query(p, k=2)[0][:, 1] for p in flat])
+    return float(np.percentile(d, percentile) * np.sqrt(pts.shape[-2]))
 
 
 def pair_correlation(points: np.ndarray, radii: np.ndarray | None = None,
