@@ -88,7 +88,7 @@ def measure(path: Path, held_out: dict[int, np.ndarray], square, seed: int) -> d
     return out
 
 
-def run_model(name: str, sets: int, seed: int) -> dict:
+def run_model(name: str, sets: int, seed: int, adopt: bool = False) -> dict:
     import diffsampler_rt
     from diffsampler_rt.finish.pipeline import describe
     from trainer.fitting.analysis import analyse
@@ -116,6 +116,9 @@ def run_model(name: str, sets: int, seed: int) -> dict:
         square = _square(sampler)
         figures = {"card": measure(network, held_out, square, seed + 1),
                    "calibrated": measure(copy, held_out, square, seed + 1)}
+        if adopt:  # the network and its shipped copy carry the calibrated card from now on
+            shutil.copy(copy, network)
+            shutil.copy(copy, Path(diffsampler_rt.__file__).parent / "models" / f"{name}.onnx")
     return {"model": name, "network": entry["network"], "sampler": sampler,
             "sets": {str(n): counts[n] for n in sizes}, "structure": analysis.structure,
             "card_pipeline": describe(card["pipeline"]), "card_entries": card["pipeline"],
@@ -137,7 +140,7 @@ def report(results: list[dict], command: str) -> str:
              "mean nearest-neighbour distance x sqrt(n)", "smallest distance x sqrt(n)",
              "star L2 discrepancy"]
     lines = ["# Finishing steps: the model cards' against `trainer calibrate`'s", "",
-             f"`{command}` on {cpu_description()} "
+             f"`{command}` (each model's section names its own run) on {cpu_description()} "
              f"({os.cpu_count()} cores). For each shipped model, the finishing steps "
              "`python -m trainer calibrate` chooses from held-in sets of its sampler "
              "(trainer/fitting/calibrate.py: structure, minimum spacing, then the searched "
@@ -151,15 +154,16 @@ def report(results: list[dict], command: str) -> str:
              "set's restore cut, a net's first-n prefix) cannot be chosen here and shows as "
              "a difference in the steps, not in these figures.", ""]
     lines += ["## Summary at each model's largest example size", "",
-              "| model | n | sets a side | structure found | calibrated steps | spectrum MAE: "
-              "card / calibrated (floor) | smallest distance: card / calibrated | star L2: "
-              "card / calibrated |", "|---|---|---|---|---|---|---|---|"]
+              "| model | ships | n | sets a side | structure found | calibrated steps | "
+              "spectrum MAE: card / calibrated (floor) | smallest distance: card / calibrated "
+              "| star L2: card / calibrated |", "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         n = list(r["sets"])[-1]
         card, cal = ({f["name"]: f for f in r["figures"][w][n]} for w in ("card", "calibrated"))
         spec, mind, l2 = names[0], names[3], names[4]
         steps = ", ".join(dict.fromkeys(line.split(":")[0] for line in r["calibrated_pipeline"]))
-        lines.append(f"| {r['model']} | {n} | {r['sets'][n]} | {r['structure'] or 'none'} | "
+        ships = "calibrated (adopted)" if r.get("adopted") else "card"
+        lines.append(f"| {r['model']} | {ships} | {n} | {r['sets'][n]} | {r['structure'] or 'none'} | "
                      f"{steps} | {card[spec]['generated']:.4f} / {cal[spec]['generated']:.4f} "
                      f"({card[spec]['noise']:.4f}) | {_cell(card[mind])} / {_cell(cal[mind])} | "
                      f"{_cell(card[l2])} / {_cell(cal[l2])} |")
@@ -168,7 +172,10 @@ def report(results: list[dict], command: str) -> str:
         lines += [f"## {r['model']} (network `{r['network']}`, sampler {r['sampler']})", "",
                   "Sets a side: " + ", ".join(f"{c} at n = {n}" for n, c in r["sets"].items())
                   + f"; structure found in every held-in set: {r['structure'] or 'none'}; "
-                  f"calibration took {r['calibrate_s']} s.", "",
+                  f"calibration took {r['calibrate_s']} s"
+                  + ("; adopted: the shipped model now carries the calibrated steps, and "
+                     "'card' is the hand-typed card it replaced" if r.get("adopted") else "")
+                  + f" (`{r.get('command', command)}`).", "",
                   "| | card | calibrated |", "|---|---|---|"]
         steps = max(len(r["card_pipeline"]), len(r["calibrated_pipeline"]))
         for i in range(steps):
@@ -198,17 +205,22 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the "
                    "kept calibration.json")
+    p.add_argument("--adopt", action="store_true", help="write the calibrated card into the "
+                   "model's network in models/ and its shipped copy (their fidelity rows "
+                   "must then be measured again)")
     a = p.parse_args()
     stored = RESULTS / "calibration.json"
     results = json.loads(stored.read_text()) if stored.exists() else []
     for name in [] if a.report_only else a.models:
         t = time.monotonic()
-        r = run_model(name, a.sets, a.seed)
+        r = run_model(name, a.sets, a.seed, a.adopt)
+        r["adopted"] = a.adopt
+        r["command"] = "python benchmarks/calibration.py " + " ".join(sys.argv[1:])
         results = [x for x in results if x["model"] != name] + [r]
         results.sort(key=lambda x: x["model"])
         stored.write_text(json.dumps(results, indent=1, default=str))
         print(f"{name}: {time.monotonic() - t:.0f} s", flush=True)
-    command = "python benchmarks/calibration.py" + (f" --sets {a.sets}" if a.sets != 64 else "")
+    command = "python benchmarks/calibration.py [--models ...] [--sets S] [--adopt]"
     (RESULTS / "calibration.md").write_text(report(results, command))
     print(f"wrote {RESULTS / 'calibration.md'}")
 

@@ -63,9 +63,10 @@ def write_examples(case: str, work: Path) -> list[Path]:
     return [folder]
 
 
-def run_fit(case: str, work: Path, minutes: float) -> dict:
-    sampler, _, init, _, target = CASES[case]
-    files = write_examples(case, work)
+def fit_files(case: str, files: list[Path], work: Path, minutes: float,
+              init: str | None = None) -> dict:
+    """``python -m trainer fit FILES --name CASE`` (one thread), its report kept in
+    benchmarks/results/fit/; the figures, or the error it ended with."""
     out = work / "out"
     cmd = [sys.executable, "-m", "trainer", "fit", *map(str, files), "--name", case, "-o",
            str(out), "--minutes", str(minutes), "--threads", "1", "--no-progress"]
@@ -87,8 +88,16 @@ def run_fit(case: str, work: Path, minutes: float) -> dict:
         shutil.copy(out / f"{case}{suffix}", keep / f"{case}{suffix}")
     trained = next((line for line in proc.stdout.splitlines() if line.startswith("trained")),
                    "")
-    return {"case": case, "sampler": sampler, "init": init, "target": target,
-            "wall_s": wall, "figures": figures, "resumed": resumed, "trained": trained}
+    return {"case": case, "wall_s": wall, "figures": figures, "resumed": resumed,
+            "trained": trained}
+
+
+def run_fit(case: str, work: Path, minutes: float) -> dict:
+    sampler, _, init, _, target = CASES[case]
+    result = fit_files(case, write_examples(case, work), work, minutes, init)
+    if "error" in result:
+        return result
+    return {**result, "sampler": sampler, "init": init, "target": target}
 
 
 def memory_case(work: Path) -> dict:

@@ -356,5 +356,31 @@ def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_p
     assert steps[0] == "thin" and card["pipeline"][0]["drop"] == "crowded"
     assert "min_spacing" in steps and {c["step"] for c in card["calibration"]} >= {
         "min_spacing", "coarse_noise", "sliced_ot", "even_out"}  # each search has its note
+    assert "structure_guidance" not in {c["step"] for c in card["calibration"]}  # no structure
     assert "min_spacing" in capsys.readouterr().out
+    # nets: the structure, its guidance searched, the point steps not (they would break it)
+    np.save(tmp_path / "nets.npy", sample("sobol_owen", 64, count=32, seed=2))
+    assert main(["calibrate", str(path), str(tmp_path / "nets.npy")]) == 0
+    card = diffsampler_rt.Model(path).card
+    assert card["pipeline"][-2:] == [{"step": "dyadic_net", "min_side": 8, "prefix": True},
+                                     {"step": "thin", "drop": "random"}]
+    assert {c["step"] for c in card["calibration"]} == {
+        "thin", "dyadic_net", "coarse_noise", "structure_guidance"}
     assert main(["calibrate", str(tmp_path / "nope.onnx"), str(tmp_path / "blue.npy")]) == 2
+
+
+def test_a_net_listed_in_sequence_order_gets_the_prefix():
+    """Owen-scrambled Sobol' sets list their points as a (0, 2)-sequence does: their first
+    points are smaller nets, so other n take the first points of the next net; the same
+    sets shuffled are still nets but their order says nothing."""
+    from trainer.fitting.calibrate import in_sequence_order, structure_entry
+    nets = sample("sobol_owen", 256, count=6, seed=2)
+    assert in_sequence_order(nets)
+    assert structure_entry("dyadic_net", [64, 256], {64: sample("sobol_owen", 64, count=6,
+                                                                seed=2), 256: nets}) == \
+        {"step": "dyadic_net", "min_side": 8, "prefix": True}
+    shuffled = np.stack([s[np.random.default_rng(i).permutation(256)] for i, s in
+                         enumerate(nets)])
+    assert not in_sequence_order(shuffled)
+    assert structure_entry("dyadic_net", [256], {256: shuffled}) == \
+        {"step": "dyadic_net", "min_side": 16}

@@ -4,7 +4,9 @@
 
 1. **Structure** (:mod:`.analysis`): where every example set is a (0, m, 2)-net, has
    stratified projections, or is a rank-1 lattice, the matching structure step (a lattice at
-   the example sizes only: its generator is chosen per n).
+   the example sizes only: its generator is chosen per n). Nets whose points are listed in
+   (0, 2)-sequence order (every first 2^j points a net) make other n the first points of
+   the next net (``prefix``).
 2. **Minimum spacing**: the examples are blue noise where their points keep apart: the 1st
    percentile of every point's nearest-neighbour distance, times sqrt(n), is at least
    ``BLUE_NOISE`` at every size (``trainer.stats.nearest_neighbour_percentile``; uniform
@@ -16,7 +18,8 @@
    distance times sqrt(n) (``trainer.stats.spacing_coefficient``), and their thinning
    drops the most crowded points; other sets get neither (random thinning).
 3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's coarse-mode
-   gain, sliced optimal-transport iterations, and the large-scale evening. For each, the
+   gain, the structure imposed on the last solver steps' predictions (where a structure
+   holds), sliced optimal-transport iterations, and the large-scale evening. For each, the
    model's sets (with every step chosen so far) are made at each example size with each of
    the step's candidate values, and their mean radial spectrum compared with the held-in
    sets' (mean absolute difference over every bin, so a value that fixes the large scales
@@ -67,6 +70,7 @@ class Search:
 #: the searched steps, in the order they are chosen
 SEARCHES = (
     Search({"step": "coarse_noise", "cut": 0.25}, "gain", (0.8, 1.25, 1.5), 1.0),
+    Search({"step": "structure_guidance"}, "steps", (1, 2, 3), 0),
     Search({"step": "sliced_ot", "directions": 128}, "iterations", (2, 5, 12, 24), 0),
     Search({"step": "even_out", "cut": 0.5}, "gain", (-0.5, -0.25, 0.25, 0.5, 0.75, 0.9), 0.0),
 )
@@ -90,13 +94,29 @@ def spacing(held_in: dict[int, np.ndarray]) -> tuple[dict[int, float], bool, dic
     return cs, all(v >= BLUE_NOISE for v in core.values()), core
 
 
-def structure_entry(name: str | None, sizes: list[int]) -> dict | None:
+def in_sequence_order(sets: np.ndarray) -> bool:
+    """Whether every set's first 2^j points are a (0, j, 2)-net for every j: points listed
+    in the order of a (0, 2)-sequence (Sobol'), so that a set's first points are a good
+    smaller set."""
+    from trainer.stats.structure import t_value
+    m = sets.shape[1].bit_length() - 1
+    return all(bool(np.all(t_value(sets[:, :1 << j]) == 0)) for j in range(1, m))
+
+
+def structure_entry(name: str | None, sizes: list[int],
+                    held_in: dict[int, np.ndarray] | None = None) -> dict | None:
+    """The structure step: a lattice at the example sides; a net from the smallest one,
+    with ``prefix`` (n between powers of four: the first n points of the next net) where
+    the held-in sets list their points in sequence order."""
     if name is None:
         return None
     sides = sorted(math.isqrt(n) for n in sizes)
     if name == "rank1_lattice":
         return {"step": name, "sides": sides}
-    return {"step": name, "min_side": sides[0]}
+    entry = {"step": name, "min_side": sides[0]}
+    if name == "dyadic_net" and held_in and all(in_sequence_order(held_in[n]) for n in sizes):
+        entry["prefix"] = True
+    return entry
 
 
 def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> list[dict]:
@@ -191,6 +211,8 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
     model = diffsampler_rt.Model(model_path)
 
     def with_value(v: Any) -> list[dict]:
+        if v == how.off:
+            return pipeline
         return _insert(pipeline, {**how.entry, how.param: v}, phase)
 
     def generator(v: Any):
@@ -236,10 +258,13 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
                         "sets' smallest distance x sqrt(n): "
                         + ", ".join(f"{c:.3f} at n = {n}" for n, c in sorted(cs.items())) + ")"
                         if blue else f" (below {BLUE_NOISE}: no spacing, random thinning)")}]
-    entry = structure_entry(structure, structure_sizes)
+    entry = structure_entry(structure, structure_sizes, held_in)
     if entry:
         notes.append({"step": entry["step"], "how": "every example set has it at "
-                      f"n = {', '.join(map(str, structure_sizes))} (from the smallest on)"})
+                      f"n = {', '.join(map(str, structure_sizes))} (from the smallest on)"
+                      + ("; every set's first 2^j points are a (0, j, 2)-net, so other n "
+                         "take the first points of the next net" if entry.get("prefix")
+                         else "")})
     pipeline = base_pipeline(entry, cs, blue)
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
@@ -247,6 +272,8 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     goal = targets(held_in) if searches else {}
     for how in searches:
         if entry is not None and STEPS[how.step].phase == "points":
+            continue
+        if entry is None and getattr(STEPS[how.step], "needs_structure", False):
             continue
         pipeline, note = search(model_path, pipeline, how, held_in, goal, seed, to_square)
         notes.append(note)
