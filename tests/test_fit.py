@@ -384,3 +384,19 @@ def test_a_net_listed_in_sequence_order_gets_the_prefix():
     assert not in_sequence_order(shuffled)
     assert structure_entry("dyadic_net", [256], {256: shuffled}) == \
         {"step": "dyadic_net", "min_side": 16}
+
+
+def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
+    """The foreign-process benchmark's processes (benchmarks/foreign.py): hard-core, relaxed
+    and lattice-like sets are blue noise at every size; jittered, clustered ones are not."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from foreign import PROCESSES
+
+    from trainer.fitting.calibrate import spacing
+    for name, blue in (("jittered", False), ("thomas", False), ("trees", False),
+                       ("dart", True), ("lloyd", True), ("hex", True)):
+        rng = np.random.default_rng(5)
+        sets = {n: np.stack([PROCESSES[name](n, rng) for _ in range(6)]) for n in (64, 256)}
+        assert spacing(sets)[1] == blue, name
