@@ -91,7 +91,9 @@ def spacing(held_in: dict[int, np.ndarray]) -> tuple[dict[int, float], bool, dic
     from trainer.stats.distance import nearest_neighbour_percentile, spacing_coefficient
     cs = {n: spacing_coefficient(sets, SPACING_PERCENTILE) for n, sets in held_in.items()}
     core = {n: nearest_neighbour_percentile(sets, NN_PERCENTILE) for n, sets in held_in.items()}
-    return cs, all(v >= BLUE_NOISE for v in core.values()), core
+    # sets with coinciding points (c = 0) have no spacing to keep, whatever the rest does
+    blue = all(v >= BLUE_NOISE for v in core.values()) and min(cs.values()) > 0
+    return cs, blue, core
 
 
 def in_sequence_order(sets: np.ndarray) -> bool:
