@@ -2,12 +2,15 @@
 steps it chooses from example sets of the model's sampler, beside the steps the model's card
 carries, and what each does to the figures against HELD-OUT sets of the sampler.
 
-    python benchmarks/calibration.py [--models gbn sot ...] [--sets 64]
+    python benchmarks/calibration.py [--models gbn sot ...] [--sets 64] [--sizes 64 256 576 1024]
+        [--adopt]
 
 Per shipped model (its network in models/): held-in and held-out sets of its sampler at its
 trained sizes (64, 256, 1024; fewer sets, or fewer sizes, for the slowest samplers: the
-report says how many), the structure every held-in set has (``trainer.fitting.analysis``),
-then ``trainer.fitting.calibrate.calibrate`` on a copy of the network. Both pipelines make
+report says how many; ``--sizes`` adds sizes where a card's choice acts at one, e.g. 576),
+the structure every held-in set has (``trainer.fitting.analysis``),
+then ``trainer.fitting.calibrate.calibrate`` on a copy of the network (``--adopt``: the
+network and its shipped copy take the calibrated card). Both pipelines make
 sets from the same seeds, compared with the held-out sets by the fit report's figures
 (``trainer.fitting.report.compare``: spectrum and pair-correlation mean absolute difference
 next to their floors, nearest-neighbour and smallest distance, star L2 discrepancy).
@@ -88,7 +91,8 @@ def measure(path: Path, held_out: dict[int, np.ndarray], square, seed: int) -> d
     return out
 
 
-def run_model(name: str, sets: int, seed: int, adopt: bool = False) -> dict:
+def run_model(name: str, sets: int, seed: int, adopt: bool = False,
+              sizes: tuple[int, ...] = SIZES) -> dict:
     import diffsampler_rt
     from diffsampler_rt.finish.pipeline import describe
     from trainer.fitting.analysis import analyse
@@ -98,8 +102,8 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False) -> dict:
     network = ROOT / "models" / f"{entry['network']}.onnx"
     card = diffsampler_rt.Model(network).card
     sampler = card["sampler"]
-    counts = SLOW_SETS.get(sampler, {n: sets for n in SIZES})
-    sizes = [n for n in SIZES if n in counts and n in card["trained_sizes"]]
+    counts = SLOW_SETS.get(sampler, {n: sets for n in sizes})
+    sizes = [n for n in sizes if n in counts and (n in card["trained_sizes"] or n not in SIZES)]
     t = time.monotonic()
     split = {n: examples(sampler, n, counts[n]) for n in sizes}
     held_in = {n: split[n][0] for n in sizes}
@@ -205,6 +209,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--report-only", action="store_true", help="rewrite the report from the "
                    "kept calibration.json")
+    p.add_argument("--sizes", type=int, nargs="+", default=list(SIZES),
+                   help="example sizes (squares; fast samplers only beyond 64, 256, 1024)")
     p.add_argument("--adopt", action="store_true", help="write the calibrated card into the "
                    "model's network in models/ and its shipped copy (their fidelity rows "
                    "must then be measured again)")
@@ -213,7 +219,7 @@ def main() -> None:
     results = json.loads(stored.read_text()) if stored.exists() else []
     for name in [] if a.report_only else a.models:
         t = time.monotonic()
-        r = run_model(name, a.sets, a.seed, a.adopt)
+        r = run_model(name, a.sets, a.seed, a.adopt, tuple(a.sizes))
         r["adopted"] = a.adopt
         r["command"] = "python benchmarks/calibration.py " + " ".join(sys.argv[1:])
         results = [x for x in results if x["model"] != name] + [r]

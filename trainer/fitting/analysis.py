@@ -95,7 +95,8 @@ def common_structure(ex: Examples, stratified: bool) -> tuple[str | None, list[i
     for name in STRUCTURES:
         if name != "rank1_lattice" and not stratified:
             continue
-        sizes = [n for n in ex.sizes if name != "dyadic_net" or n & (n - 1) == 0]
+        # nets and stratified projections are imposed at power-of-two sides only
+        sizes = [n for n in ex.sizes if name == "rank1_lattice" or n & (n - 1) == 0]
         holds = [n for n in sizes
                  if all(_structure_holds(name, s) for s in ex.iter_sets(n))]
         if holds and holds == sizes[len(sizes) - len(holds):]:  # every size from one up
