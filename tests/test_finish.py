@@ -302,3 +302,16 @@ def test_generation_checks_points_once_and_steps_trust_them(monkeypatch):
     assert seen and all(seen)  # inside the generation path: trusted
     with pytest.raises(ValueError, match="non-finite"):  # called directly: checked
         spacing.enforce_min_spacing(np.full((1, 16, 2), np.nan), 0.1)
+
+
+def test_structure_guidance_leaves_a_structure_without_a_projection_alone(tiny_onnx):
+    """A rank-1 lattice replaces the set; there is no imposition on a predicted set to
+    guide by, so the guidance is a no-op there rather than an error."""
+    import diffsampler_rt
+    model = diffsampler_rt.Model(tiny_onnx)
+    lattice = [{"step": "rank1_lattice", "sides": [8]}, {"step": "thin", "drop": "random"}]
+    model.card = {**model.card, "pipeline": lattice}
+    plain = model.generate(64, 2, seed=3, steps=3)
+    model.card = {**model.card, "pipeline": [{"step": "structure_guidance", "steps": 2}]
+                  + lattice}
+    np.testing.assert_array_equal(model.generate(64, 2, seed=3, steps=3), plain)

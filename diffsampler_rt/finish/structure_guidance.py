@@ -20,7 +20,7 @@ class StructureGuidance(Step):
                 f"{params['steps']} solver steps")
 
     def wrap(self, params, eps, ctx):
-        if not ctx.structured:
+        if not ctx.structured or ctx.project is None:  # a lattice has no projection to guide by
             return eps
         k, scale = ctx.k, float(ctx.model.card["offset_scale"])
 

@@ -275,13 +275,21 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     for how in searches:
         if entry is not None and STEPS[how.step].phase == "points":
             continue
-        if entry is None and getattr(STEPS[how.step], "needs_structure", False):
+        if STEPS[how.step].needs_structure and not _projects(entry):
             continue
         pipeline, note = search(model_path, pipeline, how, held_in, goal, seed, to_square)
         notes.append(note)
         log(f"calibration: {how.step}: {note['how']}")
         _write(model_path, pipeline, notes)
     return diffsampler_rt.Model(model_path).card
+
+
+def _projects(entry: dict | None) -> bool:
+    """Whether the structure step can impose itself on a predicted set (nets and
+    stratified projections can; a lattice replaces the set and cannot)."""
+    from diffsampler_rt.finish import STEPS
+    from diffsampler_rt.finish.base import Step
+    return entry is not None and type(STEPS[entry["step"]]).project is not Step.project
 
 
 def _write(path, pipeline: list[dict], notes: list[dict]) -> None:
