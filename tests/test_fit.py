@@ -176,6 +176,9 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
     cs, is_blue, _ = spacing(white)
     assert not is_blue and base_pipeline(None, cs, False) == [{"step": "thin", "drop": "random"}]
     assert not spacing({1024: thomas(8, 1024, 1)})[1]
+    seam = np.array([[[0.01, 0.5], [0.99, 0.5], [0.5, 0.2], [0.5, 0.8]]])  # close across x = 0
+    assert spacing({4: seam}, toroidal=True)[0][4] == pytest.approx(0.02 * 2)
+    assert spacing({4: seam})[0][4] == pytest.approx(np.hypot(0.49, 0.3) * 2)
     assert not spacing({256: jittered(256, 40, 1)})[1]
     # with a structure the spacing comes before it where it holds, after thinning elsewhere
     pipe = base_pipeline({"step": "n_rooks", "min_side": 16}, {256: 0.7}, True)

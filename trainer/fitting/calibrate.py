@@ -85,11 +85,14 @@ def _table(values: dict[int, float], digits: int = 4) -> Any:
     return vals[0] if len(sizes) == 1 else {"n": sizes, "values": vals}
 
 
-def spacing(held_in: dict[int, np.ndarray]) -> tuple[dict[int, float], bool, dict[int, float]]:
-    """Per size: the spacing coefficient (what ``min_spacing`` keeps), whether the examples
-    are blue noise, and the nearest-neighbour statistic that decided it."""
+def spacing(held_in: dict[int, np.ndarray], toroidal: bool = False
+            ) -> tuple[dict[int, float], bool, dict[int, float]]:
+    """Per size: the spacing coefficient (what ``min_spacing`` keeps; on the torus for a
+    toroidal model, whose step keeps it there), whether the examples are blue noise, and
+    the nearest-neighbour statistic that decided it."""
     from trainer.stats.distance import nearest_neighbour_percentile, spacing_coefficient
-    cs = {n: spacing_coefficient(sets, SPACING_PERCENTILE) for n, sets in held_in.items()}
+    cs = {n: spacing_coefficient(sets, SPACING_PERCENTILE, toroidal=toroidal)
+          for n, sets in held_in.items()}
     core = {n: nearest_neighbour_percentile(sets, NN_PERCENTILE) for n, sets in held_in.items()}
     # sets with coinciding points (c = 0) have no spacing to keep, whatever the rest does
     blue = all(v >= BLUE_NOISE for v in core.values()) and min(cs.values()) > 0
@@ -247,17 +250,19 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     calibrated in the square, its held-in sets unwarped by that map."""
     import diffsampler_rt
     from diffsampler_rt.density import unwarp
-    density = diffsampler_rt.Model(model_path).card.get("density")
+    card = diffsampler_rt.Model(model_path).card
+    density, toroidal = card.get("density"), card.get("padding") == "circular"
     to_square = (lambda sets: sets) if density is None else (lambda sets: unwarp(sets, density))
     held_in = {n: to_square(np.asarray(sets, dtype=np.float64)) for n, sets in held_in.items()}
-    cs, blue, core = spacing(held_in)
+    cs, blue, core = spacing(held_in, toroidal)
     per_size = ", ".join(f"{core[n]:.3f} at n = {n}" for n in sorted(core))
     notes = [{"step": "min_spacing" if blue else "thin",
               "how": f"{NN_PERCENTILE:g}st percentile of the held-in points' nearest-neighbour "
                      f"distance x sqrt(n): {per_size}"
                      + (f" (>= {BLUE_NOISE} at every size: blue noise, crowded points thinned "
                         f"first; spacing c = the {SPACING_PERCENTILE:g}th percentile of the "
-                        "sets' smallest distance x sqrt(n): "
+                        "sets' smallest distance" + (" on the torus" if toroidal else "")
+                        + " x sqrt(n): "
                         + ", ".join(f"{c:.3f} at n = {n}" for n, c in sorted(cs.items())) + ")"
                         if blue else f" (below {BLUE_NOISE}: no spacing, random thinning)")}]
     entry = structure_entry(structure, structure_sizes, held_in)

@@ -18,7 +18,7 @@ def min_distance(points: np.ndarray, toroidal: bool = False) -> np.ndarray:
 
 
 def spacing_coefficient(points: np.ndarray, percentile: float = 5.0, *,
-                        mean: bool = False) -> float:
+                        mean: bool = False, toroidal: bool = False) -> float:
     """The ``percentile`` of the smallest distance of each set (..., n, 2), times sqrt(n).
 
     The coefficient c of the spacing radius c / sqrt(n) a model card asks the runtime to
@@ -26,12 +26,13 @@ def spacing_coefficient(points: np.ndarray, percentile: float = 5.0, *,
     sampler's sets fall short of. With ``mean=True`` it is the mean smallest distance
     instead (``percentile`` unused): a radius that centres the generated sets' minimum
     distance on the sampler's, for models whose sets have too many close pairs for a low
-    percentile to lift (gbn_blob's card at n = 256 and 1024).
+    percentile to lift (gbn_blob's card at n = 256 and 1024). ``toroidal``: distances on
+    the unit torus (for sets a toroidal model keeps spaced across the square's edges).
     """
     pts = np.asarray(points, dtype=np.float64)
     if not 0 <= percentile <= 100:
         raise ValueError(f"percentile must be in [0, 100], got {percentile}")
-    smallest = min_distance(pts)
+    smallest = min_distance(pts, toroidal)
     value = smallest.mean() if mean else np.percentile(smallest, percentile)
     return float(value * np.sqrt(pts.shape[-2]))
 
