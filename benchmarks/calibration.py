@@ -222,6 +222,8 @@ def main() -> None:
         r = run_model(name, a.sets, a.seed, a.adopt, tuple(a.sizes))
         r["adopted"] = a.adopt
         r["command"] = "python benchmarks/calibration.py " + " ".join(sys.argv[1:])
+        # read again: another run may have written its models meanwhile
+        results = json.loads(stored.read_text()) if stored.exists() else []
         results = [x for x in results if x["model"] != name] + [r]
         results.sort(key=lambda x: x["model"])
         stored.write_text(json.dumps(results, indent=1, default=str))

@@ -403,3 +403,15 @@ def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
         rng = np.random.default_rng(5)
         sets = {n: np.stack([PROCESSES[name](n, rng) for _ in range(6)]) for n in (64, 256)}
         assert spacing(sets)[1] == blue, name
+
+
+def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
+    """Held-in lattices all have one spectrum (no noise of their own); candidates that only
+    draw other random sets must not beat 'off' by that noise."""
+    from trainer.fitting.calibrate import choose
+    k = np.arange(64)
+    lattice = np.stack([np.stack([k / 64, (k * 19 / 64) % 1], -1) + r for r in
+                        np.random.default_rng(0).random((16, 1, 2))]) % 1
+    noisy = lambda v: lambda n, c: np.random.default_rng(int(10 * v)).random((c, n, 2))  # noqa: E731
+    chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
+    assert chosen == {64: 0} and figures[64]["noise"] > 0

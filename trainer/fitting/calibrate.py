@@ -25,7 +25,8 @@
    sets' (mean absolute difference over every bin, so a value that fixes the large scales
    but disturbs the pattern pays for it). A size gets the candidate with the smallest
    difference where it beats the pipeline without the step by more than the difference's
-   noise (half that between two halves of the held-in sets), else none; a step no size
+   noise (that of the held-in sets and that of the generated ones, each half the
+   difference between its two halves, added in quadrature), else none; a step no size
    gets is left out. A value whose sets' star L2 discrepancy is further from the held-in
    sets' than without the step (beyond two standard errors) is not taken. Steps acting on
    the points are not searched where a structure step holds (they would move points off
@@ -167,15 +168,21 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     goal = goal or targets(held_in)
     maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
     l2s: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
+    own: dict[int, float] = {}  # the generated sets' own noise, from the "off" sets' halves
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
             sets = make(n, SEARCH_SETS)
             maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], goal[n][0])
             l2s[n][v] = l2_star(sets)
+            if v == off:
+                half = len(sets) // 2
+                own[n] = spectrum_mae(radial_spectrum(sets[:half])[1],
+                                      radial_spectrum(sets[half:])[1]) / 2
     chosen, figures = {}, {}
     for n in held_in:
-        _, noise, ref_l2 = goal[n]
+        _, held_noise, ref_l2 = goal[n]
+        noise = math.hypot(held_noise, own[n])
         miss = {v: abs(float(l2.mean()) - ref_l2) for v, l2 in l2s[n].items()}
         se = {v: math.sqrt(l2.var(ddof=1) / len(l2) + l2s[n][off].var(ddof=1) / len(l2))
               for v, l2 in l2s[n].items()}
