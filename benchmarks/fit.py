@@ -133,6 +133,18 @@ def _fig(f: dict, name: str) -> dict | None:
     return next((v for k, v in f.items() if k.startswith(name)), None)
 
 
+def relative(x: dict | None) -> str:
+    """A mean figure as 'generated vs reference' in % with its noise."""
+    return (f"{100 * (x['generated'] / x['reference'] - 1):+.1f} % "
+            f"(+-{100 * x['noise'] / x['reference']:.1f})" if x else "n/a")
+
+
+def verdicts(f: dict) -> str:
+    """A size's figures' verdicts, one clause each."""
+    return "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
+                     if isinstance(v, dict))
+
+
 def report(results: list[dict], args) -> str:
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text()
                 .splitlines() if l.startswith("model name")), platform.processor())
@@ -158,18 +170,13 @@ def report(results: list[dict], args) -> str:
         spec = _fig(f, "radial spectrum")
         mind, l2 = _fig(f, "smallest distance"), _fig(f, "star L2")
 
-        def rel(x):
-            return (f"{100 * (x['generated'] / x['reference'] - 1):+.1f} % "
-                    f"(+-{100 * x['noise'] / x['reference']:.1f})" if x else "n/a")
         target = (f"<= {r['target']}" + (" met" if spec['generated'] <= r['target'] else
                                           " **missed**")) if r["target"] else \
             f"<= 2x floor: {'met' if spec['generated'] <= 2 * spec['noise'] else '**missed**'}"
-        verdicts = "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
-                             if isinstance(v, dict))
         lines.append(f"| {r['case']}{' (--init ' + r['init'] + ')' if r['init'] else ''} | "
                      f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min"
                      f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {spec['generated']:.4f} ({spec['noise']:.4f})"
-                     f" | {target} | {rel(mind)} | {rel(l2)} | {verdicts} |")
+                     f" | {target} | {relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     missing = [c for c in list(CASES) + ["memory"] if c not in {r["case"] for r in results}]
     if missing:
         lines += ["", "Cases of this script without a row here (not run yet, or whose run failed "

@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from fit import fit_files, _fig  # noqa: E402
+from fit import _fig, fit_files, relative, verdicts  # noqa: E402
 
 #: sets written per example size
 SIZES = {64: 128, 256: 96, 1024: 48}
@@ -165,18 +165,13 @@ def report(results: list[dict], command: str) -> str:
         spec, pcf = _fig(f, "radial spectrum"), _fig(f, "pair correlation")
         mind, l2 = _fig(f, "smallest distance"), _fig(f, "star L2")
 
-        def rel(x):
-            return (f"{100 * (x['generated'] / x['reference'] - 1):+.1f} % "
-                    f"(+-{100 * x['noise'] / x['reference']:.1f})")
         what = (f"{found['embedding']}, {'uniform' if found['uniform'] else 'not uniform'}, "
                 f"{'blue noise' if found['blue'] else 'not blue noise'}"
                 + (f", {found['structure']}" if found["structure"] else ""))
-        verdicts = "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
-                             if isinstance(v, dict))
         lines.append(f"| {r['case']} | {what} | {', '.join(found['pipeline'])} | "
                      f"{r['wall_s'] / 60:.1f} min | {spec['generated']:.4f} "
                      f"({spec['noise']:.4f}) | {pcf['generated']:.4f} ({pcf['noise']:.4f}) | "
-                     f"{rel(mind)} | {rel(l2)} | {verdicts} |")
+                     f"{relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     return "\n".join(lines) + "\n"
 
 
