@@ -185,6 +185,10 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
     assert [(e["step"], e.get("where")) for e in pipe] == [
         ("min_spacing", "structured"), ("n_rooks", None), ("thin", None),
         ("min_spacing", "unstructured")]
+    # a lattice replaces the set: no spacing before it
+    pipe = base_pipeline({"step": "rank1_lattice", "sides": [8]}, {64: 0.95}, True)
+    assert [(e["step"], e.get("where")) for e in pipe] == [
+        ("rank1_lattice", None), ("thin", None), ("min_spacing", "unstructured")]
 
 
 def test_a_soft_core_is_blue_noise_at_every_size():

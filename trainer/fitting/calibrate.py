@@ -127,15 +127,18 @@ def structure_entry(name: str | None, sizes: list[int],
 
 def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> list[dict]:
     """Structure, thinning and spacing in the order that keeps an imposed structure exact:
-    the spacing goes before the structure where it holds and after thinning elsewhere."""
+    the spacing goes before a structure that keeps the points in their cells (a net,
+    stratified projections) where it holds, and after thinning elsewhere. A lattice
+    replaces the set, spacing and all: spacing its points first would only change which
+    lattice they are closest to."""
     spaced = {"step": "min_spacing", "c": _table(cs)} if blue else None
     thin = {"step": "thin", "drop": "crowded" if blue else "random"}
     if structure is None:
         return [thin] + ([spaced] if spaced else [])
     if spaced is None:
         return [structure, thin]
-    return [{**spaced, "where": "structured"}, structure, thin,
-            {**spaced, "where": "unstructured"}]
+    before = [{**spaced, "where": "structured"}] if _projects(structure) else []
+    return before + [structure, thin, {**spaced, "where": "unstructured"}]
 
 
 def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float, float]]:
