@@ -141,7 +141,7 @@ def run(case: str, work: Path, minutes: float) -> dict:
     return result
 
 
-def report(results: list[dict], command: str) -> str:
+def report(results: list[dict], command: str, note: str = "") -> str:
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text()
                 .splitlines() if l.startswith("model name")), platform.processor())
     lines = ["# Fitting point processes the project does not know", "",
@@ -152,8 +152,10 @@ def report(results: list[dict], command: str) -> str:
              "`x y` text file a set and fitted from the files. What the fit found is its "
              "own analysis; the figures are its report's at n = 1024 against the held-out "
              "sets (never trained or calibrated on). Full reports: [fit/](fit/) "
-             "(`CASE.report.md` and `.png`).", "",
-             "| process | found | finishing steps chosen | wall time | spectrum MAE (floor) "
+             "(`CASE.report.md` and `.png`). Each fit plans its training steps from a "
+             "speed probe at its start and stops at its budget; the training column gives the "
+             "steps it took." + (f" {note}" if note else ""), "",
+             "| process | found | finishing steps chosen | training | spectrum MAE (floor) "
              "| pair correlation MAE (floor) | smallest distance | star L2 | verdicts |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
@@ -169,7 +171,8 @@ def report(results: list[dict], command: str) -> str:
                 f"{'blue noise' if found['blue'] else 'not blue noise'}"
                 + (f", {found['structure']}" if found["structure"] else ""))
         lines.append(f"| {r['case']} | {what} | {', '.join(found['pipeline'])} | "
-                     f"{r['wall_s'] / 60:.1f} min | {spec['generated']:.4f} "
+                     f"{r['trained'].removeprefix('trained ') or '?'}; fit {r['wall_s'] / 60:.0f} min "
+                     f"in all | {spec['generated']:.4f} "
                      f"({spec['noise']:.4f}) | {pcf['generated']:.4f} ({pcf['noise']:.4f}) | "
                      f"{relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     return "\n".join(lines) + "\n"
@@ -182,13 +185,21 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--work", type=Path,
                    default=Path.home() / ".cache" / "diffsampler" / "foreign_bench")
+    p.add_argument("--report-only", metavar="COMMAND", help="rewrite foreign.md from the kept "
+                   "foreign.json, naming the COMMAND that made it")
+    p.add_argument("--note", default="", help="a sentence for the report's header (e.g. what "
+                   "else ran on the machine)")
     args = p.parse_args()
+    out = ROOT / "benchmarks" / "results" / "foreign.md"
+    if args.report_only:
+        out.write_text(report(json.loads(out.with_suffix(".json").read_text()),
+                              args.report_only, args.note))
+        return
     args.work.mkdir(parents=True, exist_ok=True)
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda c: run(c, args.work, args.minutes), args.cases))
     command = "python benchmarks/foreign.py " + " ".join(sys.argv[1:])
-    out = ROOT / "benchmarks" / "results" / "foreign.md"
-    out.write_text(report(results, command))
+    out.write_text(report(results, command, args.note))
     (out.with_suffix(".json")).write_text(json.dumps(results, indent=1))
     print(out.read_text())
 

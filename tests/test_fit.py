@@ -419,3 +419,11 @@ def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
     noisy = lambda v: lambda n, c: np.random.default_rng(int(10 * v)).random((c, n, 2))  # noqa: E731
     chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
     assert chosen == {64: 0} and figures[64]["noise"] > 0
+
+
+def test_report_verdicts_name_the_miss_against_the_floor():
+    from trainer.fitting.report import Figure
+    assert Figure("s", 0.01, 0.0, 0.006, "curve").verdict() == "within noise"
+    assert Figure("s", 0.03, 0.0, 0.01, "curve").verdict() == "off by 3.0x the floor"
+    assert Figure("s", 0.1, 0.0, 0.0, "curve").verdict() == "off by 0.1000 (floor 0)"  # lattices
+    assert Figure("m", 1.1, 1.0, 0.02, "mean").verdict() == "off by +10.0 %"
