@@ -144,8 +144,7 @@ def report(results: list[dict], command: str) -> str:
              "mean nearest-neighbour distance x sqrt(n)", "smallest distance x sqrt(n)",
              "star L2 discrepancy"]
     lines = ["# Finishing steps: the model cards' against `trainer calibrate`'s", "",
-             f"`{command}` (each model's section names its own run) on {cpu_description()} "
-             f"({os.cpu_count()} cores). For each shipped model, the finishing steps "
+             f"`{command}`: each model's section names its run and CPU (2 cores). For each shipped model, the finishing steps "
              "`python -m trainer calibrate` chooses from held-in sets of its sampler "
              "(trainer/fitting/calibrate.py: structure, minimum spacing, then the searched "
              "steps) beside those its card carries, and the figures each gives against "
@@ -179,7 +178,11 @@ def report(results: list[dict], command: str) -> str:
                   f"calibration took {r['calibrate_s']} s"
                   + ("; adopted: the shipped model now carries the calibrated steps, and "
                      "'card' is the hand-typed card it replaced" if r.get("adopted") else "")
-                  + f" (`{r.get('command', command)}`).", "",
+                  + (f" (`{r['command']}` on {r['cpu']})." if "command" in r else
+                     " (an earlier run of `python benchmarks/calibration.py` on another CPU, "
+                     "under the rules of that time: blue noise judged by the sets' smallest "
+                     "distance, no structure-guidance search, a search's noise that of the "
+                     "held-in sets alone)."), "",
                   "| | card | calibrated |", "|---|---|---|"]
         steps = max(len(r["card_pipeline"]), len(r["calibrated_pipeline"]))
         for i in range(steps):
@@ -222,6 +225,7 @@ def main() -> None:
         r = run_model(name, a.sets, a.seed, a.adopt, tuple(a.sizes))
         r["adopted"] = a.adopt
         r["command"] = "python benchmarks/calibration.py " + " ".join(sys.argv[1:])
+        r["cpu"] = cpu_description()
         # read again: another run may have written its models meanwhile
         results = json.loads(stored.read_text()) if stored.exists() else []
         results = [x for x in results if x["model"] != name] + [r]
