@@ -171,8 +171,9 @@ def report(results: list[dict], command: str, note: str = "") -> str:
                 f"{'blue noise' if found['blue'] else 'not blue noise'}"
                 + (f", {found['structure']}" if found["structure"] else ""))
         lines.append(f"| {r['case']} | {what} | {', '.join(found['pipeline'])} | "
-                     f"{r['trained'].removeprefix('trained ') or '?'}; fit {r['wall_s'] / 60:.0f} min "
-                     f"in all | {spec['generated']:.4f} "
+                     f"{r['trained'].removeprefix('trained ') or '?'}; "
+                     f"{'resumed run' if r.get('resumed') else 'run'} {r['wall_s'] / 60:.0f} min"
+                     f" | {spec['generated']:.4f} "
                      f"({spec['noise']:.4f}) | {pcf['generated']:.4f} ({pcf['noise']:.4f}) | "
                      f"{relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     return "\n".join(lines) + "\n"
