@@ -141,27 +141,33 @@ def run(case: str, work: Path, minutes: float) -> dict:
     return result
 
 
-def report(results: list[dict], command: str, note: str = "") -> str:
+def report(results: list[dict]) -> str:
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text()
                 .splitlines() if l.startswith("model name")), platform.processor())
+    runs = list(dict.fromkeys((r["command"], r.get("note", "")) for r in results))
     lines = ["# Fitting point processes the project does not know", "",
-             f"Made by `{command}` on {cpu} ({os.cpu_count()} cores), each fit one process "
+             "Made by " + "; ".join(f"({i}) `{c}`" + (f" ({n})" if n else "")
+                                    for i, (c, n) in enumerate(runs, 1))
+             + f" on {cpu} ({os.cpu_count()} cores), each fit one process "
              "with one thread, default settings otherwise. The processes are described in "
              "`benchmarks/foreign.py`; their sets (" + ", ".join(
                  f"{c} at n = {n}" for n, c in SIZES.items()) + ") were written as one "
              "`x y` text file a set and fitted from the files. What the fit found is its "
              "own analysis; the figures are its report's at n = 1024 against the held-out "
              "sets (never trained or calibrated on). Full reports: [fit/](fit/) "
-             "(`CASE.report.md` and `.png`). Each fit plans its training steps from a "
-             "speed probe at its start and stops at its budget; the training column gives the "
-             "steps it took." + (f" {note}" if note else ""), "",
-             "| process | found | finishing steps chosen | training | spectrum MAE (floor) "
-             "| pair correlation MAE (floor) | smallest distance | star L2 | verdicts |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "(`CASE.report.md` and `.png`, of each process's latest run). Each fit plans its "
+             "training steps from a speed probe at its start and stops at its budget; the "
+             "training column gives the steps it took.", "",
+             "| process | run | found | finishing steps chosen | training | spectrum MAE "
+             "(floor) | pair correlation MAE (floor) | smallest distance | star L2 | verdicts |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    def run_of(r: dict) -> int:
+        return runs.index((r["command"], r.get("note", ""))) + 1
+
     for r in results:
         if "error" in r:
-            lines.append(f"| {r['case']} | failed: {r['error']} | | {r['wall_s'] / 60:.1f} min "
-                         "| | | | | |")
+            lines.append(f"| {r['case']} | {run_of(r)} | failed: {r['error']} | | "
+                         f"{r['wall_s'] / 60:.1f} min | | | | | |")
             continue
         f, found = r["figures"]["1024"], r["found"]
         spec, pcf = _fig(f, "radial spectrum"), _fig(f, "pair correlation")
@@ -170,7 +176,7 @@ def report(results: list[dict], command: str, note: str = "") -> str:
         what = (f"{found['embedding']}, {'uniform' if found['uniform'] else 'not uniform'}, "
                 f"{'blue noise' if found['blue'] else 'not blue noise'}"
                 + (f", {found['structure']}" if found["structure"] else ""))
-        lines.append(f"| {r['case']} | {what} | {', '.join(found['pipeline'])} | "
+        lines.append(f"| {r['case']} | {run_of(r)} | {what} | {', '.join(found['pipeline'])} | "
                      f"{r['trained'].removeprefix('trained ') or '?'}; "
                      f"{'resumed run' if r.get('resumed') else 'run'} {r['wall_s'] / 60:.0f} min"
                      f" | {spec['generated']:.4f} "
@@ -186,22 +192,28 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--work", type=Path,
                    default=Path.home() / ".cache" / "diffsampler" / "foreign_bench")
-    p.add_argument("--report-only", metavar="COMMAND", help="rewrite foreign.md from the kept "
-                   "foreign.json, naming the COMMAND that made it")
-    p.add_argument("--note", default="", help="a sentence for the report's header (e.g. what "
+    p.add_argument("--report-only", action="store_true",
+                   help="rewrite foreign.md from the kept foreign.json")
+    p.add_argument("--note", default="", help="a sentence on the run for the report (e.g. what "
                    "else ran on the machine)")
     args = p.parse_args()
     out = ROOT / "benchmarks" / "results" / "foreign.md"
-    if args.report_only:
-        out.write_text(report(json.loads(out.with_suffix(".json").read_text()),
-                              args.report_only, args.note))
-        return
-    args.work.mkdir(parents=True, exist_ok=True)
-    with ThreadPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(lambda c: run(c, args.work, args.minutes), args.cases))
-    command = "python benchmarks/foreign.py " + " ".join(sys.argv[1:])
-    out.write_text(report(results, command, args.note))
-    (out.with_suffix(".json")).write_text(json.dumps(results, indent=1))
+    kept = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(
+        ".json").exists() else []
+    if not args.report_only:
+        args.work.mkdir(parents=True, exist_ok=True)
+        with ThreadPoolExecutor(args.jobs) as pool:
+            results = list(pool.map(lambda c: run(c, args.work, args.minutes), args.cases))
+        command = (f"python benchmarks/foreign.py --cases {' '.join(args.cases)} "
+                   f"--minutes {args.minutes:g} --jobs {args.jobs}")
+        for r in results:
+            r["command"], r["note"] = command, args.note
+        # a run replaces its own earlier rows; other runs' rows stay (each names its run)
+        new = {(r["case"], command) for r in results}
+        kept = [r for r in kept if (r["case"], r["command"]) not in new] + results
+        kept.sort(key=lambda r: list(PROCESSES).index(r["case"]))
+        out.with_suffix(".json").write_text(json.dumps(kept, indent=1))
+    out.write_text(report(kept))
     print(out.read_text())
 
 
