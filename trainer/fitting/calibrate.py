@@ -15,8 +15,11 @@
    of the set's extreme, so a soft core (a perturbed lattice, unwarped non-uniform sets)
    whose smallest distance sinks with n is still found. Blue-noise models get
    ``min_spacing`` with c per size = the 5th percentile of the sets' smallest pairwise
-   distance times sqrt(n) (``trainer.stats.spacing_coefficient``), and their thinning
-   drops the most crowded points; other sets get neither (random thinning).
+   distance times sqrt(n) (``trainer.stats.spacing_coefficient``; on the torus for a
+   toroidal model), and their thinning drops the most crowded points; other sets get
+   neither (random thinning). With a net or stratified projections the spacing runs before
+   the structure step (which keeps points in their cells); a lattice, which replaces the
+   set, gets it only where the lattice does not hold.
 3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's coarse-mode
    gain, the structure imposed on the last solver steps' predictions (where a structure
    holds), sliced optimal-transport iterations, and the large-scale evening. For each, the
