@@ -123,6 +123,7 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False,
         if adopt:  # the network and its shipped copy carry the calibrated card from now on
             shutil.copy(copy, network)
             shutil.copy(copy, Path(diffsampler_rt.__file__).parent / "models" / f"{name}.onnx")
+            adopt_in_float(network, calibrated)
     return {"model": name, "network": entry["network"], "sampler": sampler,
             "sets": {str(n): counts[n] for n in sizes}, "structure": analysis.structure,
             "card_pipeline": describe(card["pipeline"]), "card_entries": card["pipeline"],
@@ -130,6 +131,16 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False,
             "calibrated_entries": calibrated["pipeline"],
             "notes": calibrated.get("calibration", []), "figures": figures,
             "examples_s": round(drawn_s), "calibrate_s": round(calibrate_s)}
+
+
+def adopt_in_float(network: Path, card: dict) -> None:
+    """An 8-bit network's float source (models/float/, what `export quantize` re-makes it
+    from) takes the same finishing steps, so the two cards stay one."""
+    from export.defaults import edit_card
+    source = network.parent / "float" / network.name
+    if source.exists():
+        edit_card(source, lambda c: c.update(pipeline=card["pipeline"],
+                                             calibration=card["calibration"]))
 
 
 def _cell(f: dict) -> str:
