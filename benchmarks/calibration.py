@@ -103,6 +103,7 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False,
     card = diffsampler_rt.Model(network).card
     sampler = card["sampler"]
     counts = SLOW_SETS.get(sampler, {n: sets for n in sizes})
+    # the default sizes where the network was trained at them; sizes asked for beyond them
     sizes = [n for n in sizes if n in counts and (n in card["trained_sizes"] or n not in SIZES)]
     t = time.monotonic()
     split = {n: examples(sampler, n, counts[n]) for n in sizes}

@@ -22,17 +22,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from diffsampler_rt.spectrum import radial_spectrum
+from trainer.stats.distance import nearest_neighbour_distances
 
 from .analysis import _counts
-
-
-def nn_distances(sets: np.ndarray) -> np.ndarray:
-    """Every point's nearest-neighbour distance times sqrt(n): (S, n)."""
-    n = sets.shape[1]
-    return np.stack([cKDTree(p).query(p, k=2)[0][:, 1] for p in sets]) * math.sqrt(n)
 
 
 @dataclass
@@ -85,7 +78,7 @@ def compare(gen: np.ndarray, ref: np.ndarray, *, uniform: bool = True,
     r, g_gen = pair_correlation(gen)
     _, g_ref = pair_correlation(ref)
     g_floor = _curve_mae(pair_correlation(ref[:half])[1], pair_correlation(ref[half:])[1]) / 2
-    nn_gen, nn_ref = nn_distances(gen), nn_distances(ref)
+    nn_gen, nn_ref = nearest_neighbour_distances(gen), nearest_neighbour_distances(ref)
     figures = [Figure("radial spectrum, mean abs. difference", _curve_mae(s_gen, s_ref),
                       0.0, floor, "curve"),
                Figure("pair correlation, mean abs. difference", _curve_mae(g_gen, g_ref),

@@ -37,6 +37,14 @@ def spacing_coefficient(points: np.ndarray, percentile: float = 5.0, *,
     return float(value * np.sqrt(pts.shape[-2]))
 
 
+def nearest_neighbour_distances(points: np.ndarray) -> np.ndarray:
+    """Every point's nearest-neighbour distance (Euclidean) times sqrt(n): (..., n)."""
+    pts = np.asarray(points, dtype=np.float64)
+    flat = pts.reshape((-1,) + pts.shape[-2:])
+    d = np.stack([cKDTree(p).query(p, k=2)[0][:, 1] for p in flat])
+    return d.reshape(pts.shape[:-1]) * np.sqrt(pts.shape[-2])
+
+
 def nearest_neighbour_percentile(points: np.ndarray, percentile: float = 1.0) -> float:
     """The ``percentile`` of every point's nearest-neighbour distance (pooled over the sets
     (..., n, 2), Euclidean), times sqrt(n): how close the closest points come, in units of
@@ -47,12 +55,9 @@ def nearest_neighbour_percentile(points: np.ndarray, percentile: float = 1.0) ->
     random points at every n, 0.16 for jittered grids, 0.45-0.75 for dart throwing,
     relaxed sets and perturbed lattices.
     """
-    pts = np.asarray(points, dtype=np.float64)
     if not 0 <= percentile <= 100:
         raise ValueError(f"percentile must be in [0, 100], got {percentile}")
-    flat = pts.reshape((-1,) + pts.shape[-2:])
-    d = np.concatenate([cKDTree(p).query(p, k=2)[0][:, 1] for p in flat])
-    return float(np.percentile(d, percentile) * np.sqrt(pts.shape[-2]))
+    return float(np.percentile(nearest_neighbour_distances(points), percentile))
 
 
 def pair_correlation(points: np.ndarray, radii: np.ndarray | None = None,
