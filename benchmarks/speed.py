@@ -253,7 +253,7 @@ def report(results: dict, a, date: str) -> None:
         "Default solver and steps of each model card; rows from 2026-12-04 on run a batch "
         "of at least one set per core on one single-thread session per core "
         "(`diffsampler_rt.shards`), earlier rows on one session. The 8-bit (`_fast`) "
-        "models' rows from 2026-12-06 (session 81) on run without onnxruntime's "
+        "models' rows from 2026-12-06 on run without onnxruntime's "
         "`session.x64quantprecision` where the CPU has VNNI (the same outputs; with it, as "
         "in earlier rows on such CPUs, their networks took twice as long) and with it where "
         "the CPU has none (`diffsampler_rt.model.needs_exact_8bit`). *peak*: peak resident "
