@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from trainer.fitting.analysis import analyse, describe
+from trainer.fitting.calibrate import SEARCHES
 from trainer.fitting.data import split
 from trainer.fitting.examples import ExampleError, read_examples
 from trainer.samplers import sample
@@ -348,7 +349,6 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_path, capsys):
     import shutil
 
@@ -363,6 +363,8 @@ def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_p
     assert steps[0] == "thin" and card["pipeline"][0]["drop"] == "crowded"
     assert "min_spacing" in steps and {c["step"] for c in card["calibration"]} >= {
         "min_spacing", "coarse_noise", "sliced_ot", "even_out"}  # each search has its note
+    searched = [c["how"].split(":")[0] for c in card["calibration"] if c["step"] == "coarse_noise"]
+    assert searched == [s.what for s in SEARCHES[:2]]  # temperature, then the coarse modes
     assert "structure_guidance" not in {c["step"] for c in card["calibration"]}  # no structure
     assert "min_spacing" in capsys.readouterr().out
     # nets: the structure, its guidance searched, the point steps not (they would break it)

@@ -20,8 +20,9 @@
    neither (random thinning). With a net or stratified projections the spacing runs before
    the structure step (which keeps points in their cells); a lattice, which replaces the
    set, gets it only where the lattice does not hold.
-3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's coarse-mode
-   gain, the structure imposed on the last solver steps' predictions (where a structure
+3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's temperature
+   (a gain on every mode: a colder start gives more ordered sets), its coarse-mode gain, the
+   structure imposed on the last solver steps' predictions (where a structure
    holds), sliced optimal-transport iterations, and the large-scale evening. For each, the
    model's sets (with every step chosen so far) are made at each example size with each of
    the step's candidate values, and their mean radial spectrum compared with the held-in
@@ -60,11 +61,13 @@ SEARCH_SETS = 64
 @dataclass(frozen=True)
 class Search:
     """A step whose parameter ``param`` is chosen per size among ``values``; ``entry`` holds
-    its other parameters, ``off`` is the value that leaves the sets as they are."""
+    its other parameters, ``off`` is the value that leaves the sets as they are; ``what``
+    names the search in its note where the step's name alone would not."""
     entry: dict
     param: str
     values: tuple
     off: Any
+    what: str = ""
 
     @property
     def step(self) -> str:
@@ -73,7 +76,10 @@ class Search:
 
 #: the searched steps, in the order they are chosen
 SEARCHES = (
-    Search({"step": "coarse_noise", "cut": 0.25}, "gain", (0.8, 1.25, 1.5), 1.0),
+    Search({"step": "coarse_noise", "cut": 1.0}, "gain", (0.8, 0.9, 1.1), 1.0,
+           "temperature (a gain on every mode of the starting noise)"),
+    Search({"step": "coarse_noise", "cut": 0.25}, "gain", (0.8, 1.25, 1.5), 1.0,
+           "coarse-mode gain (up to 0.25 x Nyquist)"),
     Search({"step": "structure_guidance"}, "steps", (1, 2, 3), 0),
     Search({"step": "sliced_ot", "directions": 128}, "iterations", (2, 5, 12, 24), 0),
     Search({"step": "even_out", "cut": 0.5}, "gain", (-0.5, -0.25, 0.25, 0.5, 0.75, 0.9), 0.0),
@@ -240,7 +246,8 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
         return make
 
     chosen, figures = choose(how.values, how.off, generator, held_in, goal)
-    text = (f"radial spectrum, mean absolute difference from the held-in sets' with "
+    text = ((f"{how.what}: " if how.what else "")
+            + f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
                 + f" (noise {f['noise']:.4f}; star L2 "
