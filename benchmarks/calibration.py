@@ -167,8 +167,8 @@ def report(results: list[dict], command: str) -> str:
              "absolute difference, floor in the heading; means: relative difference of the "
              "mean; ✗: beyond twice its noise (the fit report's verdict). Non-uniform models "
              "after the exact unwarping. The searched steps are taken only where they beat "
-             "leaving them out by more than the noise of these sets, so few sets keep a card "
-             "short; what a card carries for sizes the examples lack (4096 and up, a thinned "
+             "leaving them out by more than three standard errors of the gain on the held-in "
+             "sets, so few sets keep a card short; what a card carries for sizes the examples lack (4096 and up, a thinned "
              "set's restore cut, a net's first-n prefix) cannot be chosen here and shows as "
              "a difference in the steps, not in these figures.", ""]
     lines += ["## Summary at each model's largest example size", "",

@@ -360,7 +360,9 @@ def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_p
     assert main(["calibrate", str(path), str(tmp_path / "blue.npy")]) == 0
     card = diffsampler_rt.Model(path).card
     steps = [e["step"] for e in card["pipeline"]]
-    assert steps[0] == "thin" and card["pipeline"][0]["drop"] == "crowded"
+    thin = steps.index("thin")  # the points' first step; only noise steps come before it
+    assert card["pipeline"][thin]["drop"] == "crowded"
+    assert set(steps[:thin]) <= {"coarse_noise"}
     assert "min_spacing" in steps and {c["step"] for c in card["calibration"]} >= {
         "min_spacing", "coarse_noise", "sliced_ot", "even_out"}  # each search has its note
     searched = [c["how"].split(":")[0] for c in card["calibration"] if c["step"] == "coarse_noise"]
@@ -413,14 +415,18 @@ def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
 
 def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
     """Held-in lattices all have one spectrum (no noise of their own); candidates that only
-    draw other random sets must not beat 'off' by that noise."""
+    draw other random sets must not beat 'off' by that noise: the folds see it."""
     from trainer.fitting.calibrate import choose
     k = np.arange(64)
     lattice = np.stack([np.stack([k / 64, (k * 19 / 64) % 1], -1) + r for r in
                         np.random.default_rng(0).random((16, 1, 2))]) % 1
-    noisy = lambda v: lambda n, c: np.random.default_rng(int(10 * v)).random((c, n, 2))  # noqa: E731
-    chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
-    assert chosen == {64: 0} and figures[64]["noise"] > 0
+    taken = 0
+    for seed in range(20):
+        noisy = lambda v: lambda n, c: np.random.default_rng([seed, int(10 * v)]).random(  # noqa: E731
+            (c, n, 2))
+        chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
+        taken += chosen[64] != 0
+    assert taken <= 1  # about 1 search in 100 takes such a value (calibrate.GAIN_SE)
 
 
 def test_report_verdicts_name_the_miss_against_the_floor():

@@ -28,10 +28,10 @@
    the step's candidate values, and their mean radial spectrum compared with the held-in
    sets' (mean absolute difference over every bin, so a value that fixes the large scales
    but disturbs the pattern pays for it). A size gets the candidate with the smallest
-   difference where it beats the pipeline without the step by more than the difference's
-   noise (that of the held-in sets and that of the generated ones, each half the
-   difference between its two halves, added in quadrature), else none; a step no size
-   gets is left out. A value whose sets' star L2 discrepancy is further from the held-in
+   difference where its gain over the pipeline without the step is real: every candidate
+   is made from the same seeds, and the gain must exceed three standard errors, taken from
+   the gains in eight folds (every eighth generated set against every eighth held-in set);
+   else none. A step no size gets is left out. A value whose sets' star L2 discrepancy is further from the held-in
    sets' than without the step (beyond two standard errors) is not taken. Steps acting on
    the points are not searched where a structure step holds (they would move points off
    it).
@@ -54,8 +54,10 @@ from diffsampler_rt.spectrum import radial_spectrum
 #: as blue noise: halfway (in ratio) between jittered grids' 0.16 and perturbed lattices' 0.45
 BLUE_NOISE, NN_PERCENTILE = 0.3, 1.0
 SPACING_PERCENTILE = 5.0
-#: sets generated per size and candidate value
-SEARCH_SETS = 64
+#: sets generated per size and candidate value; the folds a gain's standard error comes
+#: from (fewer where fewer sets are held in), and how many of them a gain must exceed: on
+#: candidates that only draw other random sets, 1 false gain in 100 searches of 5 values
+SEARCH_SETS, FOLDS, GAIN_SE = 64, 8, 3.0
 
 
 @dataclass(frozen=True)
@@ -150,18 +152,15 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
     return before + [structure, thin, {**spaced, "where": "unstructured"}]
 
 
-def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float, float]]:
-    """Per size: the held-in sets' mean radial spectrum, the noise of a difference from it
-    (half the mean absolute difference between the two halves' spectra), and their mean
+def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, list, float]]:
+    """Per size: the held-in sets' mean radial spectrum, the mean spectra of its folds
+    (every k-th set, k = :data:`FOLDS` or the number of sets where fewer), and their mean
     star L2 discrepancy. Computed once per calibration: every search compares with them."""
-    from diffsampler_rt.spectrum import spectrum_mae
     from trainer.stats.discrepancy import l2_star
     out = {}
     for n, sets in held_in.items():
-        half = len(sets) // 2
-        out[n] = (radial_spectrum(sets)[1],
-                  spectrum_mae(radial_spectrum(sets[:half])[1],
-                               radial_spectrum(sets[half:])[1]) / 2,
+        k = min(FOLDS, len(sets))
+        out[n] = (radial_spectrum(sets)[1], [radial_spectrum(sets[i::k])[1] for i in range(k)],
                   float(l2_star(sets).mean()))
     return out
 
@@ -169,42 +168,49 @@ def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, float
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
            held_in: dict[int, np.ndarray], goal: dict | None = None
            ) -> tuple[dict[int, Any], dict[int, dict]]:
-    """The value per size (``off`` where none beats it by more than the noise) and the
-    figures; ``generate(value)`` makes sets (n, count) with that value at every size;
-    ``goal`` is :func:`targets` of ``held_in`` where the caller has it already. A value
-    whose sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s,
-    by more than two standard errors, is not taken: the spectrum alone would trade away
-    the sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
+    """The value per size and the figures; ``generate(value)`` makes sets (n, count) with
+    that value at every size, from the same seeds for every value; ``goal`` is
+    :func:`targets` of ``held_in`` where the caller has it already.
+
+    The value with the smallest spectrum difference is taken where its gain over ``off`` is
+    more than :data:`GAIN_SE` standard errors, the error from the gains in :data:`FOLDS`
+    folds (every k-th generated set against every k-th held-in set). The values share
+    their seeds, so the folds see the noise of the gain itself: the held-in sets' and the
+    generated sets' noise, and how a value's effect varies from set to set. A value whose sets' mean star L2
+    discrepancy is further from the held-in sets' than ``off``'s, by more than two standard
+    errors, is not taken: the spectrum alone would trade away the sets' uniformity (e.g. by
+    moving a stratified set's points out of their strata)."""
     from diffsampler_rt.spectrum import spectrum_mae
     from trainer.stats.discrepancy import l2_star
     goal = goal or targets(held_in)
     maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
+    folds: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
     l2s: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
-    own: dict[int, float] = {}  # the generated sets' own noise, from the "off" sets' halves
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
             sets = make(n, SEARCH_SETS)
             maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], goal[n][0])
+            k = len(goal[n][1])
+            folds[n][v] = np.array([spectrum_mae(radial_spectrum(sets[i::k])[1], ref)
+                                    for i, ref in enumerate(goal[n][1])])
             l2s[n][v] = l2_star(sets)
-            if v == off:
-                half = len(sets) // 2
-                own[n] = spectrum_mae(radial_spectrum(sets[:half])[1],
-                                      radial_spectrum(sets[half:])[1]) / 2
     chosen, figures = {}, {}
     for n in held_in:
-        _, held_noise, ref_l2 = goal[n]
-        noise = math.hypot(held_noise, own[n])
+        ref_l2 = goal[n][2]
         miss = {v: abs(float(l2.mean()) - ref_l2) for v, l2 in l2s[n].items()}
         se = {v: math.sqrt(l2.var(ddof=1) / len(l2) + l2s[n][off].var(ddof=1) / len(l2))
               for v, l2 in l2s[n].items()}
         fair = [v for v in maes[n] if miss[v] <= miss[off] + 2 * se[v]]
         best = min(fair, key=maes[n].get)
-        chosen[n] = best if maes[n][off] - maes[n][best] > noise else off
+        gains = folds[n][off] - folds[n][best]
+        gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
+        chosen[n] = best if maes[n][off] - maes[n][best] > GAIN_SE * gain_se else off
         figures[n] = {"mae": {f"{v:g}": round(m, 5) for v, m in maes[n].items()},
                       "l2_star": {f"{v:g}": round(float(l2.mean()) / ref_l2 - 1, 4)
                                   for v, l2 in l2s[n].items()},
-                      "noise": round(noise, 5), "value": chosen[n]}
+                      "best": best, "gain_se": round(gain_se, 5),
+                      "fold_gains": [round(float(g), 5) for g in gains], "value": chosen[n]}
     return chosen, figures
 
 
@@ -250,16 +256,17 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
             + f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
-                + f" (noise {f['noise']:.4f}; star L2 "
+                + f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
+                "star L2 "
                 + ", ".join(f"{100 * d:+.1f} %" for d in f["l2_star"].values())
                 + f") -> {f['value']:g}"
                 for n, f in sorted(figures.items())))
     if all(v == how.off for v in chosen.values()):
-        return pipeline, {"step": how.step, "how": text + ": no value beats none by more "
-                          "than the noise, left out"}
+        return pipeline, {"step": how.step, "how": text + f": no value's gain over none "
+                          f"exceeds {GAIN_SE:g} standard errors, left out"}
     return with_value(_table(chosen, 3)), {"step": how.step, "how": text + "; the value with "
-                                           "the smallest difference where it beats none by "
-                                           "more than the noise"}
+                                           "the smallest difference where its gain over none "
+                                           f"exceeds {GAIN_SE:g} standard errors"}
 
 
 def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
