@@ -30,11 +30,11 @@
    but disturbs the pattern pays for it). A size gets the candidate with the smallest
    difference where its gain over the pipeline without the step is real: every candidate
    is made from the same seeds, and the gain must exceed three standard errors, taken from
-   the gains in eight folds (every eighth generated set against every eighth held-in set);
-   else none. A step no size gets is left out. A value whose sets' star L2 discrepancy is further from the held-in
-   sets' than without the step (beyond two standard errors) is not taken. Steps acting on
-   the points are not searched where a structure step holds (they would move points off
-   it).
+   the gains in eight folds (every eighth generated set against every eighth held-in
+   set); else none. A step no size gets is left out. A value whose sets' star L2
+   discrepancy is further from the held-in sets' than without the step (beyond two
+   standard errors) is not taken. Steps acting on the points are not searched where a
+   structure step holds (they would move points off it).
 
 A model with a density map (non-uniform examples) is calibrated in the uniform square: the
 held-in sets and the model's sets are unwarped by its map first, where its point steps act.
