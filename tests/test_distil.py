@@ -622,7 +622,7 @@ def test_spectrum_card_is_a_model_or_valid_card_entries(tiny_onnx, tmp_path, mon
     with pytest.raises(ModelFormatError, match="structure_guidance"):
         Distiller(tiny_distil(tiny_onnx, spectrum_card={"structure_guidance": -1}, **spectrum),
                   tmp_path / "b", progress=False)
-    bad = [{"step": "structure_guidance", "steps": 0}, {"step": "n_rooks"}, {"step": "thin"}]
+    bad = [{"step": "structure_guidance", "steps": -1}, {"step": "n_rooks"}, {"step": "thin"}]
     with pytest.raises(ModelFormatError, match="step 'structure_guidance': 'steps' must be"):
         Distiller(tiny_distil(tiny_onnx, spectrum_card={"pipeline": bad}, **spectrum),
                   tmp_path / "c", progress=False)

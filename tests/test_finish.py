@@ -106,7 +106,8 @@ class TestGuide(StepContract):
 class TestStructureGuidance(StepContract):
     name = "structure_guidance"
     valid = {"steps": 3}
-    invalid = [({"steps": 0}, "steps"), ({"steps": 1.5}, "steps")]
+    invalid = [({"steps": -1}, "steps"), ({"steps": 1.5}, "steps"),
+               ({"steps": {"n": [256, 64], "values": [1, 2]}}, "steps")]
 
 
 class TestMinSpacing(StepContract):
@@ -315,3 +316,22 @@ def test_structure_guidance_leaves_a_structure_without_a_projection_alone(tiny_o
     model.card = {**model.card, "pipeline": [{"step": "structure_guidance", "steps": 2}]
                   + lattice}
     np.testing.assert_array_equal(model.generate(64, 2, seed=3, steps=3), plain)
+
+
+def test_structure_guidance_steps_may_differ_by_size(tiny_onnx):
+    """Calibration chooses the guided steps size by size: a table whose value is 0 at a
+    size leaves that size's sets as they are, and guides at the others."""
+    import diffsampler_rt
+    model = diffsampler_rt.Model(tiny_onnx)
+    net = [{"step": "dyadic_net", "min_side": 4}, {"step": "thin", "drop": "random"}]
+
+    def sets(guide: list[dict], n: int) -> np.ndarray:
+        model.card = {**model.card, "pipeline": guide + net}
+        return model.generate(n, 2, seed=3, steps=3)
+
+    table = [{"step": "structure_guidance", "steps": {"n": [16, 64], "values": [0, 2]}}]
+    np.testing.assert_array_equal(sets(table, 16), sets([], 16))
+    np.testing.assert_array_equal(sets(table, 64), sets([{"step": "structure_guidance",
+                                                           "steps": 2}], 64))
+    assert not np.array_equal(sets(table, 64), sets([], 64))
+    assert "0 / 2 at n = 16 / 64" in "\n".join(diffsampler_rt.finish.pipeline.describe(table))

@@ -367,10 +367,10 @@ def test_bundled_cards_move_before_their_structure(name):
     ([{"step": "n_rooks", "min_side": 0}, {"step": "thin"}],
      "pipeline entry 0: step 'n_rooks': 'min_side' must be an integer in [1, inf], got 0"),
     ([{"step": "structure_guidance", "steps": -1}, {"step": "n_rooks"}, {"step": "thin"}],
-     "pipeline entry 0: step 'structure_guidance': 'steps' must be an integer in [1, inf], "
-     "got -1"),
-    ([{"step": "structure_guidance", "steps": 0}, {"step": "n_rooks"}, {"step": "thin"}],
-     "got 0"),
+     "pipeline entry 0: step 'structure_guidance': 'steps' must be an integer in [0, inf] "
+     "or a per-size table"),
+    ([{"step": "structure_guidance", "steps": 1.5}, {"step": "n_rooks"}, {"step": "thin"}],
+     "got 1.5"),
     ([{"step": "structure_guidance", "steps": True}, {"step": "n_rooks"}, {"step": "thin"}],
      "got True"),
     ([{"step": "structure_guidance", "steps": 2.5}, {"step": "n_rooks"}, {"step": "thin"}],

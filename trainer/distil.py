@@ -501,7 +501,7 @@ class Distiller:
         """How many of the last steps the rollout card's structure guidance steers at k."""
         if not self._imposed(k):
             return 0
-        return sum(params["steps"] for step, params in self._plan(k).steps["denoiser"]
+        return sum(step.steps_at(params, k) for step, params in self._plan(k).steps["denoiser"]
                    if step.name == "structure_guidance")
 
     def rollout(self, x: torch.Tensor) -> torch.Tensor:
