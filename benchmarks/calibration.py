@@ -192,7 +192,8 @@ def report(results: list[dict], command: str) -> str:
                   + f"; structure found in every held-in set: {r['structure'] or 'none'}; "
                   f"calibration took {r['calibrate_s']} s"
                   + ("; adopted: the shipped model now carries the calibrated steps, and "
-                     "'card' is the hand-typed card it replaced" if r.get("adopted") else "")
+                     "'card' is the card it replaced (hand-typed, or an earlier "
+                     "calibration's)" if r.get("adopted") else "")
                   + (f" (`{r['command']}` on {r['cpu']})." if "command" in r else
                      " (an earlier run of `python benchmarks/calibration.py` on another CPU, "
                      "under the rules of that time: blue noise judged by the sets' smallest "
