@@ -256,8 +256,9 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
             + f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
-                + f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
-                "star L2 "
+                + (f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
+                   if f["best"] != how.off else " (none closer than leaving it out; ")
+                + "star L2 "
                 + ", ".join(f"{100 * d:+.1f} %" for d in f["l2_star"].values())
                 + f") -> {f['value']:g}"
                 for n, f in sorted(figures.items())))
