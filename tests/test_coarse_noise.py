@@ -177,20 +177,18 @@ def test_docstring_examples():
 
 
 @pytest.mark.slow
-def test_a_coarse_gain_brings_the_ldbn_nets_integration_error_towards_the_samplers():
-    """Started from plain noise the ldbn net's sets integrate Gaussians at least 10 % better
-    than LDBN's at n = 256 (they are too even at large scales); a gain of 1.5 on the coarse
-    modes gives them back large-scale variation, and the error grows towards LDBN's."""
+def test_the_bundled_ldbn_gain_brings_its_integration_error_to_the_samplers():
+    """Without its card's gain the ldbn net's sets integrate Gaussians ~20 % better than LDBN's
+    at n = 256 (fidelity report: a miss of fidelity); with it, within a few percent."""
     from benchmarks.fidelity import integration_errors
     from trainer.samplers import sample
     ref = integration_errors(sample("ldbn", 256, count=128, seed=[7, 256]))["gauss_mse"].mean()
     m = diffsampler_rt.Model("ldbn")  # its own instance: the cached one is left alone
+    shaped = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
     _without_coarse_noise(m)
     white = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
-    m.card["pipeline"].insert(0, {"step": "coarse_noise", "cut": 0.25, "gain": 1.5})
-    shaped = integration_errors(m.generate(256, 128, seed=7))["gauss_mse"].mean()
     assert white < 0.9 * ref
-    assert white < shaped
+    assert abs(shaped / ref - 1) < 0.08
 
 
 def test_a_temperature_scales_every_other_mode():
@@ -203,21 +201,16 @@ def test_a_temperature_scales_every_other_mode():
     np.testing.assert_allclose(shape_noise(x, 0.9, 1.0, rest=0.9), 0.9 * x)  # one factor
 
 
-#: a coarse_noise entry that runs only where the model's structure holds
-STRUCTURED = {"step": "coarse_noise", "cut": 0.25, "gain": 1.5, "where": "structured"}
-
-
 def _structured_noise(pipe: list) -> dict:
-    """The pipeline's first entry, made :data:`STRUCTURED` (a copy) in place."""
-    pipe.insert(0, dict(STRUCTURED))
-    return pipe[0]
+    """ldbn_fast's coarse_noise entry that runs where its n-rooks structure holds."""
+    return next(e for e in pipe if e["step"] == "coarse_noise" and e.get("where") == "structured")
 
 
 @pytest.mark.parametrize("change, message", [
     ({"where": "structured"},
      "pipeline entry 0 ('coarse_noise') needs a structure step in the pipeline"),
     ({"temperature": 0},
-     "pipeline entry 0: step 'coarse_noise': 'temperature' must be a number in (0, 2], got 0"),
+     "pipeline entry 1: step 'coarse_noise': 'temperature' must be a number in (0, 2], got 0"),
     ({"temperature": "0.9"}, "got '0.9'"),
     ({"temperature": True}, "got True"),
     ({"where": "somewhere"}, "'where' must be one of ['structured', 'unstructured']"),
@@ -227,23 +220,23 @@ def test_structure_temperature_is_validated(change, message):
     coarse_noise entry with "where": "structured" needs a structure step, and its
     temperature a number in (0, 2]."""
     def edit(pipe):
-        entry = _structured_noise(pipe)
-        entry.update(change)
+        _structured_noise(pipe).update(change)
         if change.get("where") == "structured":  # the entry and thinning, no structure
-            return [entry, {"step": "thin"}]
+            return [_structured_noise(pipe), {"step": "thin"}]
     assert message in changed_pipeline_error("ldbn_fast", edit, "pipeline entry")
 
 
 def test_structure_temperature_applies_where_the_structure_is_imposed(tmp_path, capsys):
     """``python -m export pipeline`` writes it; the runtime starts the solver from cooler
-    noise at the sizes where the card imposes its structure (ldbn_fast, given such an entry:
+    noise at the sizes where the card imposes its structure (ldbn_fast without its runs:
     power-of-two sides >= 16), only there and only with ``structure=True``; the structure
     cannot be removed while an entry runs only where it holds."""
-    from export.defaults import edit_card
     path = tmp_path / "m.onnx"
     shutil.copy(diffsampler_rt.load("ldbn_fast").path, path)
-    edit_card(path, lambda card: _structured_noise(card["pipeline"]))
-    i = 0
+    i = diffsampler_rt.Model(path).card["pipeline"].index(
+        _structured_noise(diffsampler_rt.Model(path).card["pipeline"]))
+    assert export_main(["pipeline", str(path), "--update", str(i), "--temperature", "none"]) == 0
+    assert export_main(["pipeline", str(path), "--update", "n_rooks", "--runs", "none"]) == 0
     before = {n: diffsampler_rt.Model(path).generate(n, 2, seed=3) for n in (64, 256, 576)}
     white = diffsampler_rt.Model(path).generate(256, 2, seed=3, structure=False)
     capsys.readouterr()

@@ -266,11 +266,10 @@ def test_a_format_1_file_loads_and_makes_the_same_sets(tmp_path):
     model = onnx.load(str(src.path))
     card = json.loads(next(p.value for p in model.metadata_props if p.key == CARD_KEY))
     old = {k: v for k, v in card.items() if k != "pipeline"}
-    spacing, polish = (next(e for e in src.card["pipeline"] if e["step"] == s)
-                       for s in ("min_spacing", "sliced_ot"))
-    old.update(format_version=1, min_spacing={"n": spacing["c"]["n"], "c": spacing["c"]["values"]},
-               sliced_ot={"directions": polish["directions"], "n": polish["iterations"]["n"],
-                          "iterations": polish["iterations"]["values"]})
+    old.update(format_version=1, min_spacing={"n": [64, 256, 1024], "c": [0.6625, 0.6211, 0.5777]},
+               even_out={"cut": [0.5] * 4, "gain": [0.25, 0.3, 0.27, 0.1], "n": [256, 576, 1024, 4096]},
+               restore_cut=0.4, sliced_ot={"directions": 128, "iterations": [4, 12, 20],
+                                           "n": [256, 1024, 4096], "step": 1.5})
     for p in model.metadata_props:
         if p.key == CARD_KEY:
             p.value = json.dumps(old)

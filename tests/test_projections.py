@@ -107,8 +107,10 @@ def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_co
     src = diffsampler_rt.model.resolve("sot_32_fast")
     path = bundled_copy("sot_32_fast")
     steps = [e["step"] for e in diffsampler_rt.load(path).card["pipeline"]]
-    assert "projection_gain" not in steps  # its calibrated card has none
-    at = steps.index("min_spacing")  # before the spacing
+    at = steps.index("projection_gain")  # after the evening, before the spacing
+    assert export_main(["pipeline", str(path), "--remove", "projection_gain"]) == 0
+    assert "projection" not in capsys.readouterr().out
+    assert find(diffsampler_rt.load(path).card["pipeline"], "projection_gain") is None
     plain = diffsampler_rt.generate(path, 256, 2, seed=4)
     assert export_main(["pipeline", str(path), "--add", "projection_gain", "--at", str(at),
                         "--gain", "64:1,256:1.2"]) == 0

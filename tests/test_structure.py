@@ -347,19 +347,15 @@ def test_moves_go_before_an_imposed_structure(tiny_onnx, tmp_path, setting, move
 
 @pytest.mark.parametrize("name", ["ldbn", "ldbn_fast"])
 def test_bundled_cards_move_before_their_structure(name):
-    """ldbn's cards move their points (the spacing, and an evening where they have one)
-    before imposing n-rooks where it holds, and after thinning where it does not."""
-    from diffsampler_rt.finish import STEPS
+    """ldbn's cards space (and even) their sets before imposing n-rooks where it holds, and
+    after thinning where it does not."""
     pipe = diffsampler_rt.load(name).card["pipeline"]
     steps = [(e["step"], e.get("where")) for e in pipe]
     structure_at, thin_at = steps.index(("n_rooks", None)), steps.index(("thin", None))
     assert structure_at < thin_at
-    assert {("min_spacing", "structured"), ("min_spacing", "unstructured")} <= set(steps)
-    for at, (step, where) in enumerate(steps):
-        if STEPS[step].phase == "points" and where == "structured":
-            assert at < structure_at
-        elif STEPS[step].phase == "points" and where == "unstructured":
-            assert at > thin_at
+    for move in ("min_spacing", "even_out"):
+        assert steps.index((move, "structured")) < structure_at
+        assert steps.index((move, "unstructured")) > thin_at
 
 
 @pytest.mark.parametrize("pipeline, message", [
