@@ -422,8 +422,8 @@ def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
                         np.random.default_rng(0).random((16, 1, 2))]) % 1
     taken = 0
     for seed in range(20):
-        noisy = lambda v: lambda n, c: np.random.default_rng([seed, int(10 * v)]).random(  # noqa: E731
-            (c, n, 2))
+        def noisy(v, seed=seed):
+            return lambda n, c: np.random.default_rng([seed, int(10 * v)]).random((c, n, 2))
         chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
         taken += chosen[64] != 0
     assert taken <= 1  # about 1 search in 100 takes such a value (calibrate.GAIN_SE)

@@ -176,10 +176,10 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     more than :data:`GAIN_SE` standard errors, the error from the gains in :data:`FOLDS`
     folds (every k-th generated set against every k-th held-in set). The values share
     their seeds, so the folds see the noise of the gain itself: the held-in sets' and the
-    generated sets' noise, and how a value's effect varies from set to set. A value whose sets' mean star L2
-    discrepancy is further from the held-in sets' than ``off``'s, by more than two standard
-    errors, is not taken: the spectrum alone would trade away the sets' uniformity (e.g. by
-    moving a stratified set's points out of their strata)."""
+    generated sets' noise, and how a value's effect varies from set to set. A value whose
+    sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s, by
+    more than two standard errors, is not taken: the spectrum alone would trade away the
+    sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
     from diffsampler_rt.spectrum import spectrum_mae
     from trainer.stats.discrepancy import l2_star
     goal = goal or targets(held_in)
