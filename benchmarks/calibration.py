@@ -159,7 +159,8 @@ def report(results: list[dict], command: str) -> str:
              "mean nearest-neighbour distance x sqrt(n)", "smallest distance x sqrt(n)",
              "star L2 discrepancy"]
     lines = ["# Finishing steps: the model cards' against `trainer calibrate`'s", "",
-             f"`{command}`: each model's section names its run and CPU (2 cores). For each shipped model, the finishing steps "
+             f"`{command}`: each model's section names its run and CPU "
+             f"({os.cpu_count()} cores). For each shipped model, the finishing steps "
              "`python -m trainer calibrate` chooses from held-in sets of its sampler "
              "(trainer/fitting/calibrate.py: structure, minimum spacing, then the searched "
              "steps) beside those its card carries, and the figures each gives against "
@@ -198,11 +199,7 @@ def report(results: list[dict], command: str) -> str:
                      "calibration's)" if r.get("adopted") else "")
                   + (f"; adopted by this run, then taken back: {r['reverted']}"
                      if r.get("reverted") else "")
-                  + (f" (`{r['command']}` on {r['cpu']})." if "command" in r else
-                     " (an earlier run of `python benchmarks/calibration.py` on another CPU, "
-                     "under the rules of that time: blue noise judged by the sets' smallest "
-                     "distance, no structure-guidance search, a search's noise that of the "
-                     "held-in sets alone)."), "",
+                  + f" (`{r['command']}` on {r['cpu']}).", "",
                   "| | card | calibrated |", "|---|---|---|"]
         steps = max(len(r["card_pipeline"]), len(r["calibrated_pipeline"]))
         for i in range(steps):

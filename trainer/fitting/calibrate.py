@@ -152,6 +152,14 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
     return before + [structure, thin, {**spaced, "where": "unstructured"}]
 
 
+def fold_spectra(sets: np.ndarray, k: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The mean radial spectrum of ``sets`` and those of its k folds (every k-th set). The
+    spectrum is linear in the sets' periodograms, so the whole is the folds' weighted mean:
+    each set is transformed once."""
+    parts = [radial_spectrum(sets[i::k])[1] for i in range(k)]
+    return np.average(parts, axis=0, weights=[len(sets[i::k]) for i in range(k)]), parts
+
+
 def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, list, float]]:
     """Per size: the held-in sets' mean radial spectrum, the mean spectra of its folds
     (every k-th set, k = :data:`FOLDS` or the number of sets where fewer), and their mean
@@ -159,9 +167,7 @@ def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, list,
     from trainer.stats.discrepancy import l2_star
     out = {}
     for n, sets in held_in.items():
-        k = min(FOLDS, len(sets))
-        out[n] = (radial_spectrum(sets)[1], [radial_spectrum(sets[i::k])[1] for i in range(k)],
-                  float(l2_star(sets).mean()))
+        out[n] = (*fold_spectra(sets, min(FOLDS, len(sets))), float(l2_star(sets).mean()))
     return out
 
 
@@ -190,10 +196,9 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
         make = generate(v)
         for n in held_in:
             sets = make(n, SEARCH_SETS)
-            maes[n][v] = spectrum_mae(radial_spectrum(sets)[1], goal[n][0])
-            k = len(goal[n][1])
-            folds[n][v] = np.array([spectrum_mae(radial_spectrum(sets[i::k])[1], ref)
-                                    for i, ref in enumerate(goal[n][1])])
+            whole, parts = fold_spectra(sets, len(goal[n][1]))
+            maes[n][v] = spectrum_mae(whole, goal[n][0])
+            folds[n][v] = np.array([spectrum_mae(s, ref) for s, ref in zip(parts, goal[n][1])])
             l2s[n][v] = l2_star(sets)
     chosen, figures = {}, {}
     for n in held_in:
