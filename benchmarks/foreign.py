@@ -126,10 +126,9 @@ def findings(model: Path) -> dict:
     import diffsampler_rt
     card = diffsampler_rt.Model(model).card
     a = card["fit"]["analysis"]
-    blue = next((c["how"] for c in card.get("calibration", [])
-                 if c["step"] in ("min_spacing", "thin")), "")
     return {"embedding": a["embedding"], "uniform": a["uniform"], "structure": a["structure"],
-            "blue": "blue noise" in blue,
+            # blue noise is what makes the calibration thin the most crowded points first
+            "blue": any(e.get("drop") == "crowded" for e in card["pipeline"]),
             "pipeline": [e["step"] + (f" ({e['where']})" if "where" in e else "")
                          for e in card["pipeline"]]}
 

@@ -175,7 +175,14 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
                                              {"step": "min_spacing", "c": round(cs[64], 4)}]
     white = {256: np.random.default_rng(0).random((40, 256, 2))}
     cs, is_blue, _ = spacing(white)
-    assert not is_blue and base_pipeline(None, cs, False) == [{"step": "thin", "drop": "random"}]
+    # not blue noise: random thinning, and the examples' floor, far below their spacing
+    assert not is_blue and base_pipeline(None, cs, False) == [
+        {"step": "thin", "drop": "random"}, {"step": "min_spacing", "c": round(cs[256], 4)}]
+    assert cs[256] < 0.1
+    twins = white[256].copy()
+    twins[:, 1] = twins[:, 0]  # coinciding points: no floor to keep
+    cs, is_blue, _ = spacing({256: twins})
+    assert cs[256] == 0 and base_pipeline(None, cs, False) == [{"step": "thin", "drop": "random"}]
     assert not spacing({1024: thomas(8, 1024, 1)})[1]
     seam = np.array([[[0.01, 0.5], [0.99, 0.5], [0.5, 0.2], [0.5, 0.8]]])  # close across x = 0
     assert spacing({4: seam}, toroidal=True)[0][4] == pytest.approx(0.02 * 2)
@@ -373,10 +380,12 @@ def test_calibrate_writes_the_finishing_steps_from_example_sets(tiny_onnx, tmp_p
     np.save(tmp_path / "nets.npy", sample("sobol_owen", 64, count=32, seed=2))
     assert main(["calibrate", str(path), str(tmp_path / "nets.npy")]) == 0
     card = diffsampler_rt.Model(path).card
-    assert card["pipeline"][-2:] == [{"step": "dyadic_net", "min_side": 8, "prefix": True},
-                                     {"step": "thin", "drop": "random"}]
+    assert [e["step"] for e in card["pipeline"]][-4:] == [
+        "min_spacing", "dyadic_net", "thin", "min_spacing"]
+    assert card["pipeline"][-3:-1] == [{"step": "dyadic_net", "min_side": 8, "prefix": True},
+                                       {"step": "thin", "drop": "random"}]
     assert {c["step"] for c in card["calibration"]} == {
-        "thin", "dyadic_net", "coarse_noise", "structure_guidance"}
+        "thin", "min_spacing", "dyadic_net", "coarse_noise", "structure_guidance"}
     assert main(["calibrate", str(tmp_path / "nope.onnx"), str(tmp_path / "blue.npy")]) == 2
 
 

@@ -7,19 +7,23 @@
    the example sizes only: its generator is chosen per n). Nets whose points are listed in
    (0, 2)-sequence order (every first 2^j points a net) make other n the first points of
    the next net (``prefix``).
-2. **Minimum spacing**: the examples are blue noise where their points keep apart: the 1st
-   percentile of every point's nearest-neighbour distance, times sqrt(n), is at least
-   ``BLUE_NOISE`` at every size (``trainer.stats.nearest_neighbour_percentile``; uniform
-   random sets have 0.057 at any n, jittered grids 0.16, clustered sets less; dart
-   throwing, relaxed sets and perturbed lattices 0.45-0.75). A statistic of the process, not
-   of the set's extreme, so a soft core (a perturbed lattice, unwarped non-uniform sets)
-   whose smallest distance sinks with n is still found. Blue-noise models get
-   ``min_spacing`` with c per size = the 5th percentile of the sets' smallest pairwise
-   distance times sqrt(n) (``trainer.stats.spacing_coefficient``; on the torus for a
-   toroidal model), and their thinning drops the most crowded points; other sets get
-   neither (random thinning). With a net or stratified projections the spacing runs before
-   the structure step (which keeps points in their cells); a lattice, which replaces the
-   set, gets it only where the lattice does not hold.
+2. **Minimum spacing and thinning**: every model keeps the examples' floor, ``min_spacing``
+   with c per size = the 5th percentile of the sets' smallest pairwise distance times
+   sqrt(n) (``trainer.stats.spacing_coefficient``; on the torus for a toroidal model): no
+   generated set has a pair closer than 95 % of the example sets' closest pair. A hard core
+   (dart throwing, a thinned blue-noise set, trees that keep their trunks apart) is kept
+   where the network would let two points meet; for sets without one (uniform random,
+   jittered, clustered) the floor is far below the typical spacing and moves only the
+   closest pairs. Sets with coinciding points (c = 0) get none. The examples are blue noise
+   where their points keep apart: the 1st percentile of every point's nearest-neighbour
+   distance, times sqrt(n), is at least ``BLUE_NOISE`` at every size
+   (``trainer.stats.nearest_neighbour_percentile``; uniform random sets have 0.057 at any
+   n, jittered grids 0.16, clustered sets less; dart throwing, relaxed sets and perturbed
+   lattices 0.45-0.75), a statistic of the process, not of the set's extreme; blue-noise
+   models' thinning drops the most crowded points, other models' drops points at random.
+   With a net or stratified projections the spacing runs before the structure step (which
+   keeps points in their cells); a lattice, which replaces the set, gets it only where the
+   lattice does not hold.
 3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's temperature
    (a gain on every mode: a colder start gives more ordered sets), its coarse-mode gain, the
    structure imposed on the last solver steps' predictions (where a structure
@@ -103,9 +107,9 @@ def _table(values: dict[int, float], digits: int = 4) -> Any:
 
 def spacing(held_in: dict[int, np.ndarray], toroidal: bool = False
             ) -> tuple[dict[int, float], bool, dict[int, float]]:
-    """Per size: the spacing coefficient (what ``min_spacing`` keeps; on the torus for a
-    toroidal model, whose step keeps it there), whether the examples are blue noise, and
-    the nearest-neighbour statistic that decided it."""
+    """Per size: the spacing coefficient (the examples' floor, which ``min_spacing`` keeps;
+    on the torus for a toroidal model, whose step keeps it there), whether the examples
+    are blue noise, and the nearest-neighbour statistic that decided it."""
     from trainer.stats.distance import nearest_neighbour_percentile, spacing_coefficient
     cs = {n: spacing_coefficient(sets, SPACING_PERCENTILE, toroidal=toroidal)
           for n, sets in held_in.items()}
@@ -145,8 +149,8 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
     the spacing goes before a structure that keeps the points in their cells (a net,
     stratified projections) where it holds, and after thinning elsewhere. A lattice
     replaces the set, spacing and all: spacing its points first would only change which
-    lattice they are closest to."""
-    spaced = {"step": "min_spacing", "c": _table(cs)} if blue else None
+    lattice they are closest to. Blue-noise sets thin their most crowded points first."""
+    spaced = {"step": "min_spacing", "c": _table(cs)} if min(cs.values()) > 0 else None
     thin = {"step": "thin", "drop": "crowded" if blue else "random"}
     if structure is None:
         return [thin] + ([spaced] if spaced else [])
@@ -154,6 +158,22 @@ def base_pipeline(structure: dict | None, cs: dict[int, float], blue: bool) -> l
         return [structure, thin]
     before = [{**spaced, "where": "structured"}] if _projects(structure) else []
     return before + [structure, thin, {**spaced, "where": "unstructured"}]
+
+
+def base_notes(cs: dict[int, float], blue: bool, core: dict[int, float],
+               toroidal: bool) -> list[dict]:
+    """How the thinning and the spacing were chosen (:func:`spacing`'s figures)."""
+    per_size = ", ".join(f"{core[n]:.3f} at n = {n}" for n in sorted(core))
+    notes = [{"step": "thin", "how": f"{NN_PERCENTILE:g}st percentile of the held-in points' "
+              f"nearest-neighbour distance x sqrt(n): {per_size} "
+              + (f"(>= {BLUE_NOISE} at every size: blue noise, crowded points thinned first)"
+                 if blue else f"(below {BLUE_NOISE}: not blue noise, random thinning)")}]
+    floor = ", ".join(f"{c:.3f} at n = {n}" for n, c in sorted(cs.items()))
+    notes.append({"step": "min_spacing", "how": f"c = the {SPACING_PERCENTILE:g}th "
+                  "percentile of the held-in sets' smallest distance"
+                  + (" on the torus" if toroidal else "") + f" x sqrt(n): {floor}"
+                  + ("" if min(cs.values()) > 0 else " (coinciding points: no spacing)")})
+    return notes
 
 
 def fold_spectra(sets: np.ndarray, k: int) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -302,16 +322,7 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     to_square = (lambda sets: sets) if density is None else (lambda sets: unwarp(sets, density))
     held_in = {n: to_square(np.asarray(sets, dtype=np.float64)) for n, sets in held_in.items()}
     cs, blue, core = spacing(held_in, toroidal)
-    per_size = ", ".join(f"{core[n]:.3f} at n = {n}" for n in sorted(core))
-    notes = [{"step": "min_spacing" if blue else "thin",
-              "how": f"{NN_PERCENTILE:g}st percentile of the held-in points' nearest-neighbour "
-                     f"distance x sqrt(n): {per_size}"
-                     + (f" (>= {BLUE_NOISE} at every size: blue noise, crowded points thinned "
-                        f"first; spacing c = the {SPACING_PERCENTILE:g}th percentile of the "
-                        "sets' smallest distance" + (" on the torus" if toroidal else "")
-                        + " x sqrt(n): "
-                        + ", ".join(f"{c:.3f} at n = {n}" for n, c in sorted(cs.items())) + ")"
-                        if blue else f" (below {BLUE_NOISE}: no spacing, random thinning)")}]
+    notes = base_notes(cs, blue, core, toroidal)
     entry = structure_entry(structure, structure_sizes, held_in)
     if entry:
         notes.append({"step": entry["step"], "how": "every example set has it at "
