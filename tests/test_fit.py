@@ -228,7 +228,7 @@ def test_evening_gain_is_the_one_whose_spectrum_comes_closest():
     gains, figures = evening(
         lambda gain: lambda n, c: even_out(white[:c], gain, cut=0.5) if gain else white[:c],
         examples)
-    maes = figures[64]["mae"]
+    maes = figures[64]["difference"]
     assert set(maes) == {f"{g:g}" for g in EVEN_GAINS}
     assert gains[64] > 0 and maes[f"{gains[64]:g}"] == min(maes.values())
 
@@ -243,7 +243,7 @@ def test_a_searched_step_runs_where_its_phase_does_and_only_where_it_helps():
     examples = {64: drawn("poisson_disk", 64, 32, 2)}
     same = lambda v: lambda n, c: drawn("poisson_disk", n, 64, 7)[:c]  # noqa: E731
     chosen, figures = choose((2, 5), 0, same, examples)
-    assert chosen == {64: 0} and set(figures[64]["mae"]) == {"0", "2", "5"}
+    assert chosen == {64: 0} and set(figures[64]["difference"]) == {"0", "2", "5"}
 
 
 @pytest.mark.slow
@@ -344,8 +344,9 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
     assert "structure every set has: dyadic_net" in printed
     model = diffsampler_rt.load(out / "mine.onnx")
     steps = [e["step"] for e in model.card["pipeline"]]
-    assert steps[:2] == ["dyadic_net", "thin"] and model.card["fit"]["examples"]["64"] == {
-        "sets": 20, "held_out": 8}
+    # the examples' spacing floor, then the structure (which keeps points in their cells)
+    assert steps[:3] == ["min_spacing", "dyadic_net", "thin"]
+    assert model.card["fit"]["examples"]["64"] == {"sets": 20, "held_out": 8}
     pts = diffsampler_rt.generate(out / "mine.onnx", 100, 3, seed=1)
     assert pts.shape == (3, 100, 2) and np.all((pts >= 0) & (pts < 1))
     report = (out / "mine.report.md").read_text()

@@ -206,12 +206,51 @@ def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, list,
     return out
 
 
+@dataclass(frozen=True)
+class Measured:
+    """One candidate's sets at one size: their spectrum's difference from the held-in
+    sets' (:func:`log_spectrum_difference`), the same per fold, and each set's star L2."""
+    difference: float
+    folds: np.ndarray
+    l2: np.ndarray
+
+
+def measure(sets: np.ndarray, goal: tuple) -> Measured:
+    """``sets`` against one size's :func:`targets` entry."""
+    from trainer.stats.discrepancy import l2_star
+    whole, parts = fold_spectra(sets, len(goal[1]))
+    return Measured(log_spectrum_difference(whole, goal[0]),
+                    np.array([log_spectrum_difference(s, r) for s, r in zip(parts, goal[1])]),
+                    l2_star(sets))
+
+
+def decide(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[Any, dict]:
+    """The value taken at one size (see :func:`choose`) and the figures that decided it."""
+    o = cands[off]
+    miss = {v: abs(float(c.l2.mean()) - ref_l2) for v, c in cands.items()}
+    se = {v: math.sqrt(c.l2.var(ddof=1) / len(c.l2) + o.l2.var(ddof=1) / len(o.l2))
+          for v, c in cands.items()}
+    fair = [v for v in cands if miss[v] <= miss[off] + 2 * se[v]]
+    best = min(fair, key=lambda v: cands[v].difference)
+    gains = o.folds - cands[best].folds
+    gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
+    value = best if o.difference - cands[best].difference > GAIN_SE * gain_se else off
+    return value, {"difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()},
+                   "l2_star": {f"{v:g}": round(float(c.l2.mean()) / ref_l2 - 1, 4)
+                               for v, c in cands.items()},
+                   "best": best, "gain_se": round(gain_se, 5),
+                   "fold_gains": [round(float(g), 5) for g in gains], "value": value}
+
+
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
-           held_in: dict[int, np.ndarray], goal: dict | None = None
+           held_in: dict[int, np.ndarray], goal: dict | None = None, *,
+           memo: dict | None = None, key: Callable[[Any], Any] = repr
            ) -> tuple[dict[int, Any], dict[int, dict]]:
     """The value per size and the figures; ``generate(value)`` makes sets (n, count) with
     that value at every size, from the same seeds for every value; ``goal`` is
-    :func:`targets` of ``held_in`` where the caller has it already.
+    :func:`targets` of ``held_in`` where the caller has it already; ``memo`` keeps the
+    measurements under (``key(value)``, n) for later searches (whose "off" is often a
+    value measured here).
 
     The value with the smallest spectrum difference is taken where its gain over ``off`` is
     more than :data:`GAIN_SE` standard errors, the error from the gains in :data:`FOLDS`
@@ -221,35 +260,17 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s, by
     more than two standard errors, is not taken: the spectrum alone would trade away the
     sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
-    from trainer.stats.discrepancy import l2_star
     goal = goal or targets(held_in)
-    maes: dict[int, dict[Any, float]] = {n: {} for n in held_in}
-    folds: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
-    l2s: dict[int, dict[Any, np.ndarray]] = {n: {} for n in held_in}
+    memo = {} if memo is None else memo
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
-            sets = make(n, SEARCH_SETS)
-            whole, parts = fold_spectra(sets, len(goal[n][1]))
-            maes[n][v] = log_spectrum_difference(whole, goal[n][0])
-            folds[n][v] = np.array([log_spectrum_difference(s, ref) for s, ref in zip(parts, goal[n][1])])
-            l2s[n][v] = l2_star(sets)
+            if (key(v), n) not in memo:
+                memo[key(v), n] = measure(make(n, SEARCH_SETS), goal[n])
     chosen, figures = {}, {}
     for n in held_in:
-        ref_l2 = goal[n][2]
-        miss = {v: abs(float(l2.mean()) - ref_l2) for v, l2 in l2s[n].items()}
-        se = {v: math.sqrt(l2.var(ddof=1) / len(l2) + l2s[n][off].var(ddof=1) / len(l2))
-              for v, l2 in l2s[n].items()}
-        fair = [v for v in maes[n] if miss[v] <= miss[off] + 2 * se[v]]
-        best = min(fair, key=maes[n].get)
-        gains = folds[n][off] - folds[n][best]
-        gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
-        chosen[n] = best if maes[n][off] - maes[n][best] > GAIN_SE * gain_se else off
-        figures[n] = {"mae": {f"{v:g}": round(m, 5) for v, m in maes[n].items()},
-                      "l2_star": {f"{v:g}": round(float(l2.mean()) / ref_l2 - 1, 4)
-                                  for v, l2 in l2s[n].items()},
-                      "best": best, "gain_se": round(gain_se, 5),
-                      "fold_gains": [round(float(g), 5) for g in gains], "value": chosen[n]}
+        cands = {v: memo[key(v), n] for v in (off, *values)}
+        chosen[n], figures[n] = decide(cands, off, goal[n][2])
     return chosen, figures
 
 
@@ -272,8 +293,12 @@ def _insert(pipeline: list[dict], entry: dict, phase: str) -> list[dict]:
 
 
 def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, seed: int,
-           unwarp_sets: Callable[[np.ndarray], np.ndarray]) -> tuple[list[dict], dict]:
-    """The pipeline with ``how``'s step where it helps, and the note of how it was chosen."""
+           unwarp_sets: Callable[[np.ndarray], np.ndarray], memo: dict | None = None
+           ) -> tuple[list[dict], dict]:
+    """The pipeline with ``how``'s step where it helps, and the note of how it was chosen;
+    ``memo`` keeps every pipeline's measurements across the searches of one calibration."""
+    import json
+
     import diffsampler_rt
     from diffsampler_rt.finish import STEPS
     phase = STEPS[how.step].phase
@@ -290,11 +315,12 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
             return unwarp_sets(model.generate(n, count, seed=seed))
         return make
 
-    chosen, figures = choose(how.values, how.off, generator, held_in, goal)
+    chosen, figures = choose(how.values, how.off, generator, held_in, goal, memo=memo,
+                             key=lambda v: json.dumps(with_value(v), sort_keys=True))
     text = ((f"{how.what}: " if how.what else "")
             + f"radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
-                f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["mae"].values())
+                f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["difference"].values())
                 + (f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
                    if f["best"] != how.off else " (none closer than leaving it out; ")
                 + "star L2 "
@@ -334,13 +360,14 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
     from diffsampler_rt.finish import STEPS
-    goal = targets(held_in) if searches else {}
+    goal, memo = (targets(held_in) if searches else {}), {}
     for how in searches:
         if entry is not None and STEPS[how.step].phase == "points":
             continue
         if STEPS[how.step].needs_structure and not _projects(entry):
             continue
-        pipeline, note = search(model_path, pipeline, how, held_in, goal, seed, to_square)
+        pipeline, note = search(model_path, pipeline, how, held_in, goal, seed, to_square,
+                                memo)
         notes.append(note)
         log(f"calibration: {how.step}: {note['how']}")
         _write(model_path, pipeline, notes)
