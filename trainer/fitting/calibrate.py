@@ -9,12 +9,12 @@
    the next net (``prefix``).
 2. **Minimum spacing and thinning**: every model keeps the examples' floor, ``min_spacing``
    with c per size = the 5th percentile of the sets' smallest pairwise distance times
-   sqrt(n) (``trainer.stats.spacing_coefficient``; on the torus for a toroidal model): no
-   generated set has a pair closer than 95 % of the example sets' closest pair. A hard core
-   (dart throwing, a thinned blue-noise set, trees that keep their trunks apart) is kept
-   where the network would let two points meet; for sets without one (uniform random,
-   jittered, clustered) the floor is far below the typical spacing and moves only the
-   closest pairs. Sets with coinciding points (c = 0) get none. The examples are blue noise
+   sqrt(n) (``trainer.stats.spacing_coefficient``; on the torus for a toroidal model): a
+   generated pair closer than 95 % of the example sets' closest pairs is pushed apart. A
+   hard core (dart throwing, a thinned blue-noise set, trees that keep their trunks
+   apart) is kept where the network would let two points meet; for sets without one
+   (uniform random, jittered, clustered) the floor is far below the typical spacing and
+   moves only the closest pairs. Sets with coinciding points (c = 0) get none. The examples are blue noise
    where their points keep apart: the 1st percentile of every point's nearest-neighbour
    distance, times sqrt(n), is at least ``BLUE_NOISE`` at every size
    (``trainer.stats.nearest_neighbour_percentile``; uniform random sets have 0.057 at any
