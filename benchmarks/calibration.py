@@ -3,7 +3,7 @@ steps it chooses from example sets of the model's sampler, beside the steps the 
 carries, and what each does to the figures against HELD-OUT sets of the sampler.
 
     python benchmarks/calibration.py [--models gbn sot ...] [--sets 64] [--sizes 64 256 576 1024]
-        [--adopt]
+        [--adopt] [--taken-back MODEL WHY]
 
 Per shipped model (its network in models/): held-in and held-out sets of its sampler at its
 trained sizes (64, 256, 1024; fewer sets, or fewer sizes, for the slowest samplers: the
@@ -234,9 +234,20 @@ def main() -> None:
     p.add_argument("--adopt", action="store_true", help="write the calibrated card into the "
                    "model's network in models/ and its shipped copy (their fidelity rows "
                    "must then be measured again)")
+    p.add_argument("--taken-back", nargs=2, action="append", default=[],
+                   metavar=("MODEL", "WHY"), help="record that MODEL's adopted card was taken "
+                   "back (its files restored from git), and why, e.g. the fidelity report's "
+                   "new misses; the report says so in its row")
     a = p.parse_args()
     stored = RESULTS / "calibration.json"
     results = json.loads(stored.read_text()) if stored.exists() else []
+    for name, why in a.taken_back:
+        rows = [r for r in results if r["model"] == name and r.get("adopted")]
+        if not rows:
+            p.error(f"--taken-back {name}: no adopted row of that model in {stored}")
+        rows[0]["reverted"] = why
+    if a.taken_back:
+        stored.write_text(json.dumps(results, indent=1, default=str))
     for name in [] if a.report_only else a.models:
         t = time.monotonic()
         r = run_model(name, a.sets, a.seed, a.adopt, tuple(a.sizes))

@@ -1,5 +1,6 @@
 """The benchmark scripts run end to end (tiny sizes)."""
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -560,3 +561,26 @@ def test_speed_report_names_each_models_cpu():
     assert _cpus_text(merged) == "AMD EPYC (avx2; no VNNI) (sot); a CPU not recorded (gbn)"
     again = merge_kept(json.loads(json.dumps(kept_json(merged))), {})  # kept in speed.json
     assert again["sot"]["cpu"] == "AMD EPYC (avx2; no VNNI)" and "cpu" not in again["gbn"]
+
+
+def test_calibration_report_records_a_card_taken_back(tmp_path, monkeypatch):
+    """``--taken-back MODEL WHY`` marks an adopted row (the report says the shipped card is
+    the earlier one, and why); a model without an adopted row is refused."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import calibration
+    shutil.copy(ROOT / "benchmarks" / "results" / "calibration.json", tmp_path)
+    monkeypatch.setattr(calibration, "RESULTS", tmp_path)
+    rows = json.loads((tmp_path / "calibration.json").read_text())
+    adopted = next(r["model"] for r in rows if r.get("adopted"))
+    monkeypatch.setattr(sys, "argv", ["calibration.py", "--report-only", "--taken-back",
+                                      adopted, "two new misses"])
+    calibration.main()
+    row = next(r for r in json.loads((tmp_path / "calibration.json").read_text())
+               if r["model"] == adopted)
+    assert row["reverted"] == "two new misses"
+    assert "then taken back: two new misses" in (tmp_path / "calibration.md").read_text()
+    kept = [r["model"] for r in rows if not r.get("adopted")]
+    monkeypatch.setattr(sys, "argv", ["calibration.py", "--report-only", "--taken-back",
+                                      kept[0], "x"])
+    with pytest.raises(SystemExit):
+        calibration.main()
