@@ -423,6 +423,29 @@ def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
         assert spacing(sets)[1] == blue, name
 
 
+def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_cannot_see():
+    from trainer.fitting.calibrate import L2_TOLERANCE, Measured, decide
+    rng = np.random.default_rng(0)
+
+    def cand(difference: float, l2: float) -> Measured:
+        folds = difference + rng.normal(0, 1e-4, 8)
+        return Measured(float(folds.mean()), folds, l2 * (1 + rng.normal(0, 1e-3, 64)))
+
+    ref = 1.0
+    # a clearly closer spectrum, its star L2 3 % off (significant, inside the tolerance)
+    value, f = decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.03)}, 0, ref)
+    assert value == 1 and f["by"] == "spectrum"
+    # 10 % off: not taken, however close its spectrum
+    value, f = decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.0 + 2 * L2_TOLERANCE)}, 0, ref)
+    assert value == 0 and f["best"] == 0
+    # the spectrum cannot tell them apart; off misses the star L2 by 20 %: mended
+    value, f = decide({0: cand(0.10, 0.8), 1: cand(0.10, 0.9), 2: cand(0.10, 0.99)}, 0, ref)
+    assert value == 2 and f["by"] == "star L2"
+    # ... but not by a value whose spectrum is further off, nor where off is within 5 %
+    assert decide({0: cand(0.10, 0.8), 1: cand(0.2, 0.99)}, 0, ref)[0] == 0
+    assert decide({0: cand(0.10, 0.97), 1: cand(0.10, 1.0)}, 0, ref)[0] == 0
+
+
 def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
     """Held-in lattices all have one spectrum (no noise of their own); candidates that only
     draw other random sets must not beat 'off' by that noise: the folds see it."""

@@ -38,7 +38,10 @@
    the gains in eight folds (every eighth generated set against every eighth held-in
    set); else none. A step no size gets is left out. A value whose sets' star L2
    discrepancy is further from the held-in sets' than without the step (beyond two
-   standard errors) is not taken. Steps acting on the points are not searched where a
+   standard errors) and by more than 5 % is not taken. Where the spectrum cannot tell the
+   values apart and the sets miss the held-in sets' star L2 by more than 5 %, the value
+   that brings it closest (by more than three standard errors, its spectrum no further
+   off) is taken. Steps acting on the points are not searched where a
    structure step holds (they would move points off it).
 
 A model with a density map (non-uniform examples) is calibrated in the uniform square: the
@@ -66,6 +69,9 @@ SEARCH_SETS, FOLDS, GAIN_SE = 64, 8, 3.0
 #: the power added to both spectra before their logarithms are compared: a thousandth of
 #: white noise's, below which a difference in the large scales no longer shows in any figure
 LOG_FLOOR = 1e-3
+#: how far (relative) a value's mean star L2 discrepancy may stray from the held-in sets'
+#: and still be taken, and beyond which a miss is repaired: the fit targets' tolerance
+L2_TOLERANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -228,18 +234,35 @@ def decide(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[Any, di
     """The value taken at one size (see :func:`choose`) and the figures that decided it."""
     o = cands[off]
     miss = {v: abs(float(c.l2.mean()) - ref_l2) for v, c in cands.items()}
-    se = {v: math.sqrt(c.l2.var(ddof=1) / len(c.l2) + o.l2.var(ddof=1) / len(o.l2))
-          for v, c in cands.items()}
-    fair = [v for v in cands if miss[v] <= miss[off] + 2 * se[v]]
+    # the values share their seeds: a value's star L2 moves set by set against off's
+    l2_se = {v: float(np.std(c.l2 - o.l2, ddof=1)) / math.sqrt(len(c.l2)) if v != off else 0.0
+             for v, c in cands.items()}
+    allowed = max(L2_TOLERANCE * ref_l2, 0.0)
+    fair = [v for v in cands if miss[v] <= max(miss[off] + 2 * l2_se[v], allowed)]
     best = min(fair, key=lambda v: cands[v].difference)
     gains = o.folds - cands[best].folds
     gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
-    value = best if o.difference - cands[best].difference > GAIN_SE * gain_se else off
+    value, by = off, None
+    if o.difference - cands[best].difference > GAIN_SE * gain_se:
+        value, by = best, "spectrum"
+    elif miss[off] > allowed:  # the spectrum cannot tell them apart: repair the star L2
+        level = [v for v in fair if v != off and _not_worse(cands[v], o)]
+        mended = min(level, key=miss.get, default=off)
+        if mended != off and miss[off] - miss[mended] > GAIN_SE * l2_se[mended]:
+            value, by = mended, "star L2"
     return value, {"difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()},
                    "l2_star": {f"{v:g}": round(float(c.l2.mean()) / ref_l2 - 1, 4)
                                for v, c in cands.items()},
                    "best": best, "gain_se": round(gain_se, 5),
-                   "fold_gains": [round(float(g), 5) for g in gains], "value": value}
+                   "fold_gains": [round(float(g), 5) for g in gains], "value": value,
+                   "by": by}
+
+
+def _not_worse(c: Measured, o: Measured) -> bool:
+    """Whether ``c``'s spectrum is no further from the held-in sets' than ``o``'s beyond
+    two standard errors of the folds' differences."""
+    loss = c.folds - o.folds
+    return float(loss.mean()) <= 2 * float(loss.std(ddof=1)) / math.sqrt(len(loss))
 
 
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
@@ -258,8 +281,12 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     their seeds, so the folds see the noise of the gain itself: the held-in sets' and the
     generated sets' noise, and how a value's effect varies from set to set. A value whose
     sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s, by
-    more than two standard errors, is not taken: the spectrum alone would trade away the
-    sets' uniformity (e.g. by moving a stratified set's points out of their strata)."""
+    more than two (paired) standard errors, and more than :data:`L2_TOLERANCE`, is not
+    taken: the spectrum alone would trade away the sets' uniformity (e.g. by moving a
+    stratified set's points out of their strata). Where no value's spectrum gain is real
+    and ``off`` misses the star L2 by more than :data:`L2_TOLERANCE`, the value that comes
+    closest is taken if it gains more than three paired standard errors there without a
+    spectrum further off (beyond two standard errors)."""
     goal = goal or targets(held_in)
     memo = {} if memo is None else memo
     for v in (off, *values):
@@ -318,21 +345,23 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
     chosen, figures = choose(how.values, how.off, generator, held_in, goal, memo=memo,
                              key=lambda v: json.dumps(with_value(v), sort_keys=True))
     text = ((f"{how.what}: " if how.what else "")
-            + f"radial spectrum, mean absolute difference from the held-in sets' with "
+            + f"log radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["difference"].values())
                 + (f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
                    if f["best"] != how.off else " (none closer than leaving it out; ")
                 + "star L2 "
                 + ", ".join(f"{100 * d:+.1f} %" for d in f["l2_star"].values())
-                + f") -> {f['value']:g}"
+                + f") -> {f['value']:g}" + (" (by star L2)" if f["by"] == "star L2" else "")
                 for n, f in sorted(figures.items())))
     if all(v == how.off for v in chosen.values()):
         return pipeline, {"step": how.step, "how": text + f": no value's gain over none "
                           f"exceeds {GAIN_SE:g} standard errors, left out"}
     return with_value(_table(chosen, 3)), {"step": how.step, "how": text + "; the value with "
                                            "the smallest difference where its gain over none "
-                                           f"exceeds {GAIN_SE:g} standard errors"}
+                                           f"exceeds {GAIN_SE:g} standard errors; where none "
+                                           "does and the star L2 misses by more than "
+                                           f"{100 * L2_TOLERANCE:g} %, the value that mends it"}
 
 
 def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
