@@ -237,7 +237,7 @@ def decide(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[Any, di
     # the values share their seeds: a value's star L2 moves set by set against off's
     l2_se = {v: float(np.std(c.l2 - o.l2, ddof=1)) / math.sqrt(len(c.l2)) if v != off else 0.0
              for v, c in cands.items()}
-    allowed = max(L2_TOLERANCE * ref_l2, 0.0)
+    allowed = L2_TOLERANCE * ref_l2
     fair = [v for v in cands if miss[v] <= max(miss[off] + 2 * l2_se[v], allowed)]
     best = min(fair, key=lambda v: cands[v].difference)
     gains = o.folds - cands[best].folds
