@@ -438,6 +438,9 @@ def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_
     # 10 % off: not taken, however close its spectrum
     value, f = decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.0 + 2 * L2_TOLERANCE)}, 0, ref)
     assert value == 0 and f["best"] == 0
+    # off misses by 6 %: a value 2 % further is taken, one 6 % further is not
+    assert decide({0: cand(0.10, 0.94), 1: cand(0.05, 0.92)}, 0, ref)[0] == 1
+    assert decide({0: cand(0.10, 0.94), 1: cand(0.05, 0.88)}, 0, ref)[0] == 0
     # the spectrum cannot tell them apart; off misses the star L2 by 20 %: mended
     value, f = decide({0: cand(0.10, 0.8), 1: cand(0.10, 0.9), 2: cand(0.10, 0.99)}, 0, ref)
     assert value == 2 and f["by"] == "star L2"

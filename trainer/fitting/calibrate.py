@@ -37,8 +37,8 @@
    is made from the same seeds, and the gain must exceed three standard errors, taken from
    the gains in eight folds (every eighth generated set against every eighth held-in
    set); else none. A step no size gets is left out. A value whose sets' star L2
-   discrepancy is further from the held-in sets' than without the step (beyond two
-   standard errors) and by more than 5 % is not taken. Where the spectrum cannot tell the
+   discrepancy is more than 5 % further from the held-in sets' than without the step
+   (and beyond two standard errors) is not taken. Where the spectrum cannot tell the
    values apart and the sets miss the held-in sets' star L2 by more than 5 %, the value
    that brings it closest (by more than three standard errors, its spectrum no further
    off) is taken. Steps acting on the points are not searched where a
@@ -69,8 +69,9 @@ SEARCH_SETS, FOLDS, GAIN_SE = 64, 8, 3.0
 #: the power added to both spectra before their logarithms are compared: a thousandth of
 #: white noise's, below which a difference in the large scales no longer shows in any figure
 LOG_FLOOR = 1e-3
-#: how far (relative) a value's mean star L2 discrepancy may stray from the held-in sets'
-#: and still be taken, and beyond which a miss is repaired: the fit targets' tolerance
+#: how much further (relative) than without the step a value's mean star L2 discrepancy
+#: may stray from the held-in sets' and still be taken, and beyond which a miss is
+#: repaired: the fit targets' tolerance
 L2_TOLERANCE = 0.05
 
 
@@ -238,7 +239,7 @@ def decide(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[Any, di
     l2_se = {v: float(np.std(c.l2 - o.l2, ddof=1)) / math.sqrt(len(c.l2)) if v != off else 0.0
              for v, c in cands.items()}
     allowed = L2_TOLERANCE * ref_l2
-    fair = [v for v in cands if miss[v] <= max(miss[off] + 2 * l2_se[v], allowed)]
+    fair = [v for v in cands if miss[v] <= miss[off] + max(2 * l2_se[v], allowed)]
     best = min(fair, key=lambda v: cands[v].difference)
     gains = o.folds - cands[best].folds
     gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
@@ -280,9 +281,9 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     folds (every k-th generated set against every k-th held-in set). The values share
     their seeds, so the folds see the noise of the gain itself: the held-in sets' and the
     generated sets' noise, and how a value's effect varies from set to set. A value whose
-    sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s, by
-    more than two (paired) standard errors, and more than :data:`L2_TOLERANCE`, is not
-    taken: the spectrum alone would trade away the sets' uniformity (e.g. by moving a
+    sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s by
+    more than :data:`L2_TOLERANCE` (of the held-in sets' figure) and more than two paired
+    standard errors is not taken: the spectrum alone would trade away the sets' uniformity (e.g. by moving a
     stratified set's points out of their strata). Where no value's spectrum gain is real
     and ``off`` misses the star L2 by more than :data:`L2_TOLERANCE`, the value that comes
     closest is taken if it gains more than three paired standard errors there without a
