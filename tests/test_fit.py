@@ -424,14 +424,15 @@ def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
 
 
 def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_cannot_see():
-    from trainer.fitting.calibrate import L2_TOLERANCE, Measured, decide
+    from trainer.fitting.calibrate import L2_TOLERANCE, Measured, Target, decide
     rng = np.random.default_rng(0)
 
     def cand(difference: float, l2: float) -> Measured:
         folds = difference + rng.normal(0, 1e-4, 8)
-        return Measured(float(folds.mean()), folds, l2 * (1 + rng.normal(0, 1e-3, 64)))
+        return Measured(float(folds.mean()), folds, l2 * (1 + rng.normal(0, 1e-3, 64)),
+                        np.full(64, 0.7))
 
-    ref = 1.0
+    ref = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7)
     # a clearly closer spectrum, its star L2 3 % off (significant, inside the tolerance)
     value, f = decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.03)}, 0, ref)
     assert value == 1 and f["by"] == "spectrum"
@@ -447,6 +448,25 @@ def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_
     # ... but not by a value whose spectrum is further off, nor where off is within 5 %
     assert decide({0: cand(0.10, 0.8), 1: cand(0.2, 0.99)}, 0, ref)[0] == 0
     assert decide({0: cand(0.10, 0.97), 1: cand(0.10, 1.0)}, 0, ref)[0] == 0
+
+
+def test_the_spacing_rises_to_the_percentile_that_matches_the_examples_smallest_distance():
+    from trainer.fitting.calibrate import Measured, Target, decide_spacing
+    rng = np.random.default_rng(1)
+
+    def cand(smallest: float, difference: float = 0.1) -> Measured:
+        folds = difference + rng.normal(0, 1e-4, 8)
+        return Measured(float(folds.mean()), folds, np.full(64, 1.0) + rng.normal(0, 1e-3, 64),
+                        smallest + rng.normal(0, 0.01, 64))
+
+    goal = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7)
+    # the floor leaves the sets' smallest distance 29 % short; the 30th percentile meets it
+    value, f = decide_spacing({5: cand(0.5), 15: cand(0.6), 30: cand(0.69), 50: cand(0.8)}, 5,
+                              goal)
+    assert value == 30 and f["smallest"]["5"] == pytest.approx(-0.29, abs=0.01)
+    # not where its spectrum is further off, nor where the floor already meets it
+    assert decide_spacing({5: cand(0.5), 30: cand(0.7, difference=0.3)}, 5, goal)[0] == 5
+    assert decide_spacing({5: cand(0.7), 30: cand(0.7)}, 5, goal)[0] == 5
 
 
 def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():

@@ -23,7 +23,11 @@
    models' thinning drops the most crowded points, other models' drops points at random.
    With a net or stratified projections the spacing runs before the structure step (which
    keeps points in their cells); a lattice, which replaces the set, gets it only where the
-   lattice does not hold.
+   lattice does not hold. After the searches (3.), c is raised where the network lets
+   points come closer than the examples do: to the 15th, 30th or 50th percentile of
+   their smallest distance, size by size, where that brings the sets' mean smallest
+   distance closer to the held-in sets' by more than three standard errors (values from
+   the same seeds, their spectrum no further off, their star L2 not straying).
 3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's temperature
    (a gain on every mode: a colder start gives more ordered sets), its coarse-mode gain, the
    structure imposed on the last solver steps' predictions (where a structure
@@ -62,6 +66,9 @@ from diffsampler_rt.spectrum import radial_spectrum
 #: as blue noise: halfway (in ratio) between jittered grids' 0.16 and perturbed lattices' 0.45
 BLUE_NOISE, NN_PERCENTILE = 0.3, 1.0
 SPACING_PERCENTILE = 5.0
+#: the percentiles of the held-in sets' smallest distance the spacing's c is searched
+#: among, after every other step (the first: the floor every spacing starts from)
+SPACING_PERCENTILES = (SPACING_PERCENTILE, 15.0, 30.0, 50.0)
 #: sets generated per size and candidate value; the folds a gain's standard error comes
 #: from (fewer where fewer sets are held in), and how many of them a gain must exceed: on
 #: candidates that only draw other random sets, 1 false gain in 100 searches of 5 values
@@ -202,44 +209,74 @@ def log_spectrum_difference(a: np.ndarray, b: np.ndarray) -> float:
                                 - np.log(np.asarray(b) + LOG_FLOOR))))
 
 
-def targets(held_in: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, list, float]]:
-    """Per size: the held-in sets' mean radial spectrum, the mean spectra of its folds
-    (every k-th set, k = :data:`FOLDS` or the number of sets where fewer), and their mean
-    star L2 discrepancy. Computed once per calibration: every search compares with them."""
+@dataclass(frozen=True)
+class Target:
+    """One size's held-in sets as the searches compare with them: their mean radial
+    spectrum and its folds', their mean star L2 discrepancy and mean smallest distance
+    x sqrt(n) (on the torus for a toroidal model)."""
+    spectrum: np.ndarray
+    folds: list
+    l2: float
+    smallest: float
+    toroidal: bool = False
+
+
+def targets(held_in: dict[int, np.ndarray], toroidal: bool = False) -> dict[int, Target]:
+    """Per size: the held-in sets' :class:`Target` (the folds: every k-th set, k =
+    :data:`FOLDS` or the number of sets where fewer). Computed once per calibration:
+    every search compares with them."""
     from trainer.stats.discrepancy import l2_star
+    from trainer.stats.distance import min_distance
     out = {}
     for n, sets in held_in.items():
-        out[n] = (*fold_spectra(sets, min(FOLDS, len(sets))), float(l2_star(sets).mean()))
+        whole, parts = fold_spectra(sets, min(FOLDS, len(sets)))
+        out[n] = Target(whole, parts, float(l2_star(sets).mean()),
+                        float(min_distance(sets, toroidal).mean() * math.sqrt(n)), toroidal)
     return out
 
 
 @dataclass(frozen=True)
 class Measured:
     """One candidate's sets at one size: their spectrum's difference from the held-in
-    sets' (:func:`log_spectrum_difference`), the same per fold, and each set's star L2."""
+    sets' (:func:`log_spectrum_difference`), the same per fold, each set's star L2 and
+    smallest distance x sqrt(n)."""
     difference: float
     folds: np.ndarray
     l2: np.ndarray
+    smallest: np.ndarray
 
 
-def measure(sets: np.ndarray, goal: tuple) -> Measured:
-    """``sets`` against one size's :func:`targets` entry."""
+def measure(sets: np.ndarray, goal: Target) -> Measured:
+    """``sets`` against one size's :class:`Target`."""
     from trainer.stats.discrepancy import l2_star
-    whole, parts = fold_spectra(sets, len(goal[1]))
-    return Measured(log_spectrum_difference(whole, goal[0]),
-                    np.array([log_spectrum_difference(s, r) for s, r in zip(parts, goal[1])]),
-                    l2_star(sets))
+    from trainer.stats.distance import min_distance
+    whole, parts = fold_spectra(sets, len(goal.folds))
+    return Measured(log_spectrum_difference(whole, goal.spectrum),
+                    np.array([log_spectrum_difference(s, r) for s, r in zip(parts, goal.folds)]),
+                    l2_star(sets), min_distance(sets, goal.toroidal) * math.sqrt(sets.shape[1]))
 
 
-def decide(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[Any, dict]:
-    """The value taken at one size (see :func:`choose`) and the figures that decided it."""
+def _paired_se(a: np.ndarray, b: np.ndarray) -> float:
+    """The standard error of the mean of a - b: per-set figures of two values made from
+    the same seeds, which move set by set together."""
+    return float(np.std(a - b, ddof=1)) / math.sqrt(len(a)) if a is not b else 0.0
+
+
+def _fair(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[list, dict, dict]:
+    """The values whose star L2 strays no more than :data:`L2_TOLERANCE` (and two
+    standard errors) further than ``off``'s, with every value's miss and error."""
     o = cands[off]
     miss = {v: abs(float(c.l2.mean()) - ref_l2) for v, c in cands.items()}
-    # the values share their seeds: a value's star L2 moves set by set against off's
-    l2_se = {v: float(np.std(c.l2 - o.l2, ddof=1)) / math.sqrt(len(c.l2)) if v != off else 0.0
-             for v, c in cands.items()}
+    l2_se = {v: _paired_se(c.l2, o.l2) for v, c in cands.items()}
     allowed = L2_TOLERANCE * ref_l2
-    fair = [v for v in cands if miss[v] <= miss[off] + max(2 * l2_se[v], allowed)]
+    return [v for v in cands if miss[v] <= miss[off] + max(2 * l2_se[v], allowed)], miss, l2_se
+
+
+def decide(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dict]:
+    """The value taken at one size (see :func:`choose`) and the figures that decided it."""
+    o, ref_l2 = cands[off], goal.l2
+    fair, miss, l2_se = _fair(cands, off, ref_l2)
+    allowed = L2_TOLERANCE * ref_l2
     best = min(fair, key=lambda v: cands[v].difference)
     gains = o.folds - cands[best].folds
     gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
@@ -266,15 +303,34 @@ def _not_worse(c: Measured, o: Measured) -> bool:
     return float(loss.mean()) <= 2 * float(loss.std(ddof=1)) / math.sqrt(len(loss))
 
 
+def decide_spacing(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dict]:
+    """The spacing's percentile at one size: the one whose sets' mean smallest distance
+    comes closest to the held-in sets', where it gains more than :data:`GAIN_SE` paired
+    standard errors over ``off`` (the floor) without a spectrum further off or a star L2
+    that strays (:func:`_fair`)."""
+    o = cands[off]
+    fair = [v for v in _fair(cands, off, goal.l2)[0] if v == off or _not_worse(cands[v], o)]
+    miss = {v: abs(float(c.smallest.mean()) - goal.smallest) for v, c in cands.items()}
+    best = min(fair, key=miss.get)
+    se = _paired_se(cands[best].smallest, o.smallest)
+    value = best if miss[off] - miss[best] > GAIN_SE * se else off
+    return value, {"smallest": {f"{v:g}": round(float(c.smallest.mean()) / goal.smallest - 1,
+                                                 4) for v, c in cands.items()},
+                   "difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()},
+                   "best": best, "se": round(se, 5), "value": value}
+
+
 def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
            held_in: dict[int, np.ndarray], goal: dict | None = None, *,
-           memo: dict | None = None, key: Callable[[Any], Any] = repr
+           memo: dict | None = None, key: Callable[[Any], Any] = repr,
+           rule: Callable[[dict, Any, Target], tuple[Any, dict]] | None = None
            ) -> tuple[dict[int, Any], dict[int, dict]]:
     """The value per size and the figures; ``generate(value)`` makes sets (n, count) with
     that value at every size, from the same seeds for every value; ``goal`` is
     :func:`targets` of ``held_in`` where the caller has it already; ``memo`` keeps the
     measurements under (``key(value)``, n) for later searches (whose "off" is often a
-    value measured here).
+    value measured here); ``rule`` decides at each size (:func:`decide`, the default, or
+    :func:`decide_spacing`).
 
     The value with the smallest spectrum difference is taken where its gain over ``off`` is
     more than :data:`GAIN_SE` standard errors, the error from the gains in :data:`FOLDS`
@@ -290,6 +346,7 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     spectrum further off (beyond two standard errors)."""
     goal = goal or targets(held_in)
     memo = {} if memo is None else memo
+    rule = rule or decide
     for v in (off, *values):
         make = generate(v)
         for n in held_in:
@@ -298,7 +355,7 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     chosen, figures = {}, {}
     for n in held_in:
         cands = {v: memo[key(v), n] for v in (off, *values)}
-        chosen[n], figures[n] = decide(cands, off, goal[n][2])
+        chosen[n], figures[n] = rule(cands, off, goal[n])
     return chosen, figures
 
 
@@ -320,31 +377,41 @@ def _insert(pipeline: list[dict], entry: dict, phase: str) -> list[dict]:
     return pipeline[:at] + [entry] + pipeline[at:]
 
 
+def _maker(model_path, seed: int, unwarp_sets: Callable[[np.ndarray], np.ndarray]):
+    """``maker(pipeline)(n, count)``: the model's sets with that pipeline, from ``seed``."""
+    import diffsampler_rt
+    model = diffsampler_rt.Model(model_path)
+
+    def maker(pipeline: list[dict]) -> Callable[[int, int], np.ndarray]:
+        def make(n: int, count: int) -> np.ndarray:
+            model.card = {**model.card, "pipeline": pipeline}
+            return unwarp_sets(model.generate(n, count, seed=seed))
+        return make
+    return maker
+
+
+def _key(pipeline: list[dict]) -> str:
+    """A pipeline's measurements' key in a calibration's memo."""
+    import json
+    return json.dumps(pipeline, sort_keys=True)
+
+
 def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, seed: int,
            unwarp_sets: Callable[[np.ndarray], np.ndarray], memo: dict | None = None
            ) -> tuple[list[dict], dict]:
     """The pipeline with ``how``'s step where it helps, and the note of how it was chosen;
     ``memo`` keeps every pipeline's measurements across the searches of one calibration."""
-    import json
-
-    import diffsampler_rt
     from diffsampler_rt.finish import STEPS
     phase = STEPS[how.step].phase
-    model = diffsampler_rt.Model(model_path)
+    maker = _maker(model_path, seed, unwarp_sets)
 
     def with_value(v: Any) -> list[dict]:
         if v == how.off:
             return pipeline
         return _insert(pipeline, {**how.entry, how.param: v}, phase)
 
-    def generator(v: Any):
-        def make(n: int, count: int) -> np.ndarray:
-            model.card = {**model.card, "pipeline": with_value(v)}
-            return unwarp_sets(model.generate(n, count, seed=seed))
-        return make
-
-    chosen, figures = choose(how.values, how.off, generator, held_in, goal, memo=memo,
-                             key=lambda v: json.dumps(with_value(v), sort_keys=True))
+    chosen, figures = choose(how.values, how.off, lambda v: maker(with_value(v)), held_in,
+                             goal, memo=memo, key=lambda v: _key(with_value(v)))
     text = ((f"{how.what}: " if how.what else "")
             + f"log radial spectrum, mean absolute difference from the held-in sets' with "
             f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
@@ -363,6 +430,43 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
                                            f"exceeds {GAIN_SE:g} standard errors; where none "
                                            "does and the star L2 misses by more than "
                                            f"{100 * L2_TOLERANCE:g} %, the value that mends it"}
+
+
+def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Target],
+                   seed: int, unwarp_sets: Callable[[np.ndarray], np.ndarray],
+                   memo: dict | None = None) -> tuple[list[dict], dict | None]:
+    """The pipeline with its spacing's c raised, size by size, to the percentile of the
+    held-in sets' smallest distance (:data:`SPACING_PERCENTILES`) that brings the sets'
+    mean smallest distance closest to theirs (:func:`decide_spacing`), and the note; no
+    change (and no note) without a spacing."""
+    from diffsampler_rt.spacing import MAX_SPACING
+    from trainer.stats.distance import spacing_coefficient
+    if not any(e["step"] == "min_spacing" for e in pipeline):
+        return pipeline, None
+    toroidal = next(iter(goal.values())).toroidal
+    table = {p: {n: spacing_coefficient(sets, p, toroidal=toroidal) for n, sets in held_in.items()}
+             for p in SPACING_PERCENTILES}
+    floor, *higher = [p for p in SPACING_PERCENTILES if max(table[p].values()) < MAX_SPACING]
+    if not higher:
+        return pipeline, None
+
+    def with_c(cs: dict[int, float]) -> list[dict]:
+        return [{**e, "c": _table(cs)} if e["step"] == "min_spacing" else e for e in pipeline]
+
+    maker = _maker(model_path, seed, unwarp_sets)
+    chosen, figures = choose(tuple(higher), floor, lambda p: maker(with_c(table[p])), held_in,
+                             goal, memo=memo, key=lambda p: _key(with_c(table[p])),
+                             rule=decide_spacing)
+    text = ("c: the held-in sets' smallest distance at its "
+            + ", ".join(f"{p:g}th" for p in (floor, *higher)) + " percentile; the sets' mean "
+            "smallest distance against the held-in sets' with each: " + "; ".join(
+                f"at n = {n}: " + ", ".join(f"{100 * d:+.1f} %" for d in f["smallest"].values())
+                + f" -> {f['value']:g}th (c = {table[f['value']][n]:.3f})"
+                for n, f in sorted(figures.items()))
+            + f"; the percentile that comes closest where it gains more than {GAIN_SE:g} "
+            "standard errors over the floor, its spectrum no further off")
+    return with_c({n: table[p][n] for n, p in chosen.items()}), {"step": "min_spacing",
+                                                                  "how": text}
 
 
 def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
@@ -390,7 +494,7 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     _write(model_path, pipeline, notes)
     log("calibration: " + "; ".join(n["how"] for n in notes))
     from diffsampler_rt.finish import STEPS
-    goal, memo = (targets(held_in) if searches else {}), {}
+    goal, memo = (targets(held_in, toroidal) if searches else {}), {}
     for how in searches:
         if entry is not None and STEPS[how.step].phase == "points":
             continue
@@ -401,6 +505,13 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
         notes.append(note)
         log(f"calibration: {how.step}: {note['how']}")
         _write(model_path, pipeline, notes)
+    if searches and (entry is None or _projects(entry)):  # a lattice holds at every example size
+        pipeline, note = spacing_search(model_path, pipeline, held_in, goal, seed, to_square,
+                                        memo)
+        if note:
+            notes.append(note)
+            log(f"calibration: min_spacing: {note['how']}")
+            _write(model_path, pipeline, notes)
     return diffsampler_rt.Model(model_path).card
 
 
