@@ -234,7 +234,8 @@ def test_evening_gain_is_the_one_whose_spectrum_comes_closest():
 
 
 def test_a_searched_step_runs_where_its_phase_does_and_only_where_it_helps():
-    from trainer.fitting.calibrate import _insert, choose
+    from trainer.fitting.calibrate import _insert
+    from trainer.fitting.choice import choose
     pipe = [{"step": "thin", "drop": "crowded"}, {"step": "min_spacing", "c": 0.7}]
     assert _insert(pipe, {"step": "coarse_noise", "gain": 1.2}, "noise")[0]["step"] == \
         "coarse_noise"
@@ -424,7 +425,7 @@ def test_blue_noise_is_told_apart_on_processes_the_project_does_not_know():
 
 
 def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_cannot_see():
-    from trainer.fitting.calibrate import L2_TOLERANCE, Measured, Target, decide
+    from trainer.fitting.choice import L2_TOLERANCE, Measured, Target, decide
     rng = np.random.default_rng(0)
 
     def cand(difference: float, l2: float) -> Measured:
@@ -451,7 +452,7 @@ def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_
 
 
 def test_the_spacing_rises_to_the_percentile_that_matches_the_examples_smallest_distance():
-    from trainer.fitting.calibrate import Measured, Target, decide_spacing
+    from trainer.fitting.choice import Measured, Target, decide_spacing
     rng = np.random.default_rng(1)
 
     def cand(smallest: float, difference: float = 0.1) -> Measured:
@@ -472,7 +473,7 @@ def test_the_spacing_rises_to_the_percentile_that_matches_the_examples_smallest_
 def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
     """Held-in lattices all have one spectrum (no noise of their own); candidates that only
     draw other random sets must not beat 'off' by that noise: the folds see it."""
-    from trainer.fitting.calibrate import choose
+    from trainer.fitting.choice import choose
     k = np.arange(64)
     lattice = np.stack([np.stack([k / 64, (k * 19 / 64) % 1], -1) + r for r in
                         np.random.default_rng(0).random((16, 1, 2))]) % 1
@@ -482,7 +483,7 @@ def test_a_search_does_not_take_the_generated_sets_own_noise_for_a_gain():
             return lambda n, c: np.random.default_rng([seed, int(10 * v)]).random((c, n, 2))
         chosen, figures = choose((1, 2, 3, 4, 5), 0, noisy, {64: lattice})
         taken += chosen[64] != 0
-    assert taken <= 1  # about 1 search in 100 takes such a value (calibrate.GAIN_SE)
+    assert taken <= 1  # about 1 search in 100 takes such a value (choice.GAIN_SE)
 
 
 def test_report_verdicts_name_the_miss_against_the_floor():

@@ -1,0 +1,199 @@
+"""How a calibration's searches compare candidate values with the held-in example sets, and
+decide (the rules ``trainer.fitting.calibrate`` runs; its docstring says them in words).
+
+Every candidate value's sets are made from the same seeds, so values are compared set by
+set: a gain's standard error comes from folds (every k-th generated set against every k-th
+held-in set) or from per-set differences, and holds the noise of both sides and how the
+value's effect varies from set to set.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from diffsampler_rt.spectrum import radial_spectrum
+
+#: sets generated per size and candidate value; the folds a gain's standard error comes
+#: from (fewer where fewer sets are held in), and how many of them a gain must exceed: on
+#: candidates that only draw other random sets, 1 false gain in 100 searches of 5 values
+SEARCH_SETS, FOLDS, GAIN_SE = 64, 8, 3.0
+#: the power added to both spectra before their logarithms are compared: a thousandth of
+#: white noise's, below which a difference in the large scales no longer shows in any figure
+LOG_FLOOR = 1e-3
+#: how much further (relative) than without the step a value's mean star L2 discrepancy
+#: may stray from the held-in sets' and still be taken, and beyond which a miss is
+#: repaired: the fit targets' tolerance
+L2_TOLERANCE = 0.05
+
+
+def fold_spectra(sets: np.ndarray, k: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The mean radial spectrum of ``sets`` and those of its k folds (every k-th set). The
+    spectrum is linear in the sets' periodograms, so the whole is the folds' weighted mean:
+    each set is transformed once."""
+    parts = [radial_spectrum(sets[i::k])[1] for i in range(k)]
+    return np.average(parts, axis=0, weights=[len(sets[i::k]) for i in range(k)]), parts
+
+
+def log_spectrum_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute difference of two radial spectra's logarithms (each + :data:`LOG_FLOOR`).
+
+    On a linear scale the bins around the spectral peak (power about 1) outweigh the large
+    scales, whose power is 1e-4 to 1e-2 in blue-noise and stratified sets; yet a two-fold
+    excess there is what smooth integrands' error grows with. Ratios weigh every bin alike.
+    """
+    return float(np.mean(np.abs(np.log(np.asarray(a) + LOG_FLOOR)
+                                - np.log(np.asarray(b) + LOG_FLOOR))))
+
+
+@dataclass(frozen=True)
+class Target:
+    """One size's held-in sets as the searches compare with them: their mean radial
+    spectrum and its folds', their mean star L2 discrepancy and mean smallest distance
+    x sqrt(n) (on the torus for a toroidal model)."""
+    spectrum: np.ndarray
+    folds: list
+    l2: float
+    smallest: float
+    toroidal: bool = False
+
+
+def targets(held_in: dict[int, np.ndarray], toroidal: bool = False) -> dict[int, Target]:
+    """Per size: the held-in sets' :class:`Target` (the folds: every k-th set, k =
+    :data:`FOLDS` or the number of sets where fewer). Computed once per calibration:
+    every search compares with them."""
+    from trainer.stats.discrepancy import l2_star
+    from trainer.stats.distance import min_distance
+    out = {}
+    for n, sets in held_in.items():
+        whole, parts = fold_spectra(sets, min(FOLDS, len(sets)))
+        out[n] = Target(whole, parts, float(l2_star(sets).mean()),
+                        float(min_distance(sets, toroidal).mean() * math.sqrt(n)), toroidal)
+    return out
+
+
+@dataclass(frozen=True)
+class Measured:
+    """One candidate's sets at one size: their spectrum's difference from the held-in
+    sets' (:func:`log_spectrum_difference`), the same per fold, each set's star L2 and
+    smallest distance x sqrt(n)."""
+    difference: float
+    folds: np.ndarray
+    l2: np.ndarray
+    smallest: np.ndarray
+
+
+def measure(sets: np.ndarray, goal: Target) -> Measured:
+    """``sets`` against one size's :class:`Target`."""
+    from trainer.stats.discrepancy import l2_star
+    from trainer.stats.distance import min_distance
+    whole, parts = fold_spectra(sets, len(goal.folds))
+    return Measured(log_spectrum_difference(whole, goal.spectrum),
+                    np.array([log_spectrum_difference(s, r) for s, r in zip(parts, goal.folds)]),
+                    l2_star(sets), min_distance(sets, goal.toroidal) * math.sqrt(sets.shape[1]))
+
+
+def _paired_se(a: np.ndarray, b: np.ndarray) -> float:
+    """The standard error of the mean of a - b: per-set figures of two values made from
+    the same seeds, which move set by set together."""
+    return float(np.std(a - b, ddof=1)) / math.sqrt(len(a)) if a is not b else 0.0
+
+
+def _fair(cands: dict[Any, Measured], off: Any, ref_l2: float) -> tuple[list, dict, dict]:
+    """The values whose star L2 strays no more than :data:`L2_TOLERANCE` (and two
+    standard errors) further than ``off``'s, with every value's miss and error."""
+    o = cands[off]
+    miss = {v: abs(float(c.l2.mean()) - ref_l2) for v, c in cands.items()}
+    l2_se = {v: _paired_se(c.l2, o.l2) for v, c in cands.items()}
+    allowed = L2_TOLERANCE * ref_l2
+    return [v for v in cands if miss[v] <= miss[off] + max(2 * l2_se[v], allowed)], miss, l2_se
+
+
+def decide(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dict]:
+    """The value taken at one size (see :func:`choose`) and the figures that decided it."""
+    o, ref_l2 = cands[off], goal.l2
+    fair, miss, l2_se = _fair(cands, off, ref_l2)
+    allowed = L2_TOLERANCE * ref_l2
+    best = min(fair, key=lambda v: cands[v].difference)
+    gains = o.folds - cands[best].folds
+    gain_se = float(gains.std(ddof=1)) / math.sqrt(len(gains))
+    value, by = off, None
+    if o.difference - cands[best].difference > GAIN_SE * gain_se:
+        value, by = best, "spectrum"
+    elif miss[off] > allowed:  # the spectrum cannot tell them apart: repair the star L2
+        level = [v for v in fair if v != off and _not_worse(cands[v], o)]
+        mended = min(level, key=miss.get, default=off)
+        if mended != off and miss[off] - miss[mended] > GAIN_SE * l2_se[mended]:
+            value, by = mended, "star L2"
+    return value, {"difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()},
+                   "l2_star": {f"{v:g}": round(float(c.l2.mean()) / ref_l2 - 1, 4)
+                               for v, c in cands.items()},
+                   "best": best, "gain_se": round(gain_se, 5),
+                   "fold_gains": [round(float(g), 5) for g in gains], "value": value,
+                   "by": by}
+
+
+def _not_worse(c: Measured, o: Measured) -> bool:
+    """Whether ``c``'s spectrum is no further from the held-in sets' than ``o``'s beyond
+    two standard errors of the folds' differences."""
+    loss = c.folds - o.folds
+    return float(loss.mean()) <= 2 * float(loss.std(ddof=1)) / math.sqrt(len(loss))
+
+
+def decide_spacing(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dict]:
+    """The spacing's percentile at one size: the one whose sets' mean smallest distance
+    comes closest to the held-in sets', where it gains more than :data:`GAIN_SE` paired
+    standard errors over ``off`` (the floor) without a spectrum further off or a star L2
+    that strays (:func:`_fair`)."""
+    o = cands[off]
+    fair = [v for v in _fair(cands, off, goal.l2)[0] if v == off or _not_worse(cands[v], o)]
+    miss = {v: abs(float(c.smallest.mean()) - goal.smallest) for v, c in cands.items()}
+    best = min(fair, key=miss.get)
+    se = _paired_se(cands[best].smallest, o.smallest)
+    value = best if miss[off] - miss[best] > GAIN_SE * se else off
+    return value, {"smallest": {f"{v:g}": round(float(c.smallest.mean()) / goal.smallest - 1,
+                                                 4) for v, c in cands.items()},
+                   "difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()},
+                   "best": best, "se": round(se, 5), "value": value}
+
+
+def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int], np.ndarray]],
+           held_in: dict[int, np.ndarray], goal: dict | None = None, *,
+           memo: dict | None = None, key: Callable[[Any], Any] = repr,
+           rule: Callable[[dict, Any, Target], tuple[Any, dict]] | None = None
+           ) -> tuple[dict[int, Any], dict[int, dict]]:
+    """The value per size and the figures; ``generate(value)`` makes sets (n, count) with
+    that value at every size, from the same seeds for every value; ``goal`` is
+    :func:`targets` of ``held_in`` where the caller has it already; ``memo`` keeps the
+    measurements under (``key(value)``, n) for later searches (whose "off" is often a
+    value measured here); ``rule`` decides at each size (:func:`decide`, the default, or
+    :func:`decide_spacing`).
+
+    The value with the smallest spectrum difference is taken where its gain over ``off`` is
+    more than :data:`GAIN_SE` standard errors, the error from the gains in :data:`FOLDS`
+    folds (every k-th generated set against every k-th held-in set). The values share
+    their seeds, so the folds see the noise of the gain itself: the held-in sets' and the
+    generated sets' noise, and how a value's effect varies from set to set. A value whose
+    sets' mean star L2 discrepancy is further from the held-in sets' than ``off``'s by
+    more than :data:`L2_TOLERANCE` (of the held-in sets' figure) and more than two paired
+    standard errors is not taken: the spectrum alone would trade away the sets'
+    uniformity (e.g. by moving a stratified set's points out of their strata). Where no
+    value's spectrum gain is real and ``off`` misses the star L2 by more than
+    :data:`L2_TOLERANCE`, the value that comes closest is taken if it gains more than three
+    paired standard errors there without a spectrum further off (beyond two standard
+    errors)."""
+    goal = goal or targets(held_in)
+    memo = {} if memo is None else memo
+    rule = rule or decide
+    for v in (off, *values):
+        make = generate(v)
+        for n in held_in:
+            if (key(v), n) not in memo:
+                memo[key(v), n] = measure(make(n, SEARCH_SETS), goal[n])
+    chosen, figures = {}, {}
+    for n in held_in:
+        cands = {v: memo[key(v), n] for v in (off, *values)}
+        chosen[n], figures[n] = rule(cands, off, goal[n])
+    return chosen, figures
