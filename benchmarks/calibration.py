@@ -182,8 +182,8 @@ def report(results: list[dict], command: str) -> str:
         card, cal = ({f["name"]: f for f in r["figures"][w][n]} for w in ("card", "calibrated"))
         spec, mind, l2 = names[0], names[3], names[4]
         steps = ", ".join(dict.fromkeys(line.split(":")[0] for line in r["calibrated_pipeline"]))
-        ships = ("calibrated (adopted)" if r.get("adopted") else
-                 "card (calibrated one taken back)" if r.get("reverted") else "card")
+        ships = ("card (calibrated one taken back)" if r.get("reverted") else
+                 "calibrated (adopted)" if r.get("adopted") else "card")
         lines.append(f"| {r['model']} | {ships} | {n} | {r['sets'][n]} | {r['structure'] or 'none'} | "
                      f"{steps} | {card[spec]['generated']:.4f} / {cal[spec]['generated']:.4f} "
                      f"({card[spec]['noise']:.4f}) | {_cell(card[mind])} / {_cell(cal[mind])} | "
@@ -196,7 +196,7 @@ def report(results: list[dict], command: str) -> str:
                   f"calibration took {r['calibrate_s']} s"
                   + ("; adopted: the shipped model now carries the calibrated steps, and "
                      "'card' is the card it replaced (hand-typed, or an earlier "
-                     "calibration's)" if r.get("adopted") else "")
+                     "calibration's)" if r.get("adopted") and not r.get("reverted") else "")
                   + (f"; adopted by this run, then taken back: {r['reverted']}"
                      if r.get("reverted") else "")
                   + f" (`{r['command']}` on {r['cpu']}).", "",

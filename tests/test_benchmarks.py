@@ -578,7 +578,9 @@ def test_calibration_report_records_a_card_taken_back(tmp_path, monkeypatch):
     row = next(r for r in json.loads((tmp_path / "calibration.json").read_text())
                if r["model"] == adopted)
     assert row["reverted"] == "two new misses"
-    assert "then taken back: two new misses" in (tmp_path / "calibration.md").read_text()
+    report = (tmp_path / "calibration.md").read_text()
+    assert "then taken back: two new misses" in report
+    assert f"| {adopted} | card (calibrated one taken back) |" in report
     kept = [r["model"] for r in rows if not r.get("adopted")]
     monkeypatch.setattr(sys, "argv", ["calibration.py", "--report-only", "--taken-back",
                                       kept[0], "x"])
