@@ -237,7 +237,7 @@ def main() -> None:
     p.add_argument("--taken-back", nargs=2, action="append", default=[],
                    metavar=("MODEL", "WHY"), help="record that MODEL's adopted card was taken "
                    "back (its files restored from git), and why, e.g. the fidelity report's "
-                   "new misses; the report says so in its row")
+                   "new misses; the report says so in its row (rewrites the report only)")
     a = p.parse_args()
     stored = RESULTS / "calibration.json"
     results = json.loads(stored.read_text()) if stored.exists() else []
@@ -248,7 +248,7 @@ def main() -> None:
         rows[0]["reverted"] = why
     if a.taken_back:
         stored.write_text(json.dumps(results, indent=1, default=str))
-    for name in [] if a.report_only else a.models:
+    for name in [] if a.report_only or a.taken_back else a.models:
         t = time.monotonic()
         r = run_model(name, a.sets, a.seed, a.adopt, tuple(a.sizes))
         r["adopted"] = a.adopt

@@ -170,7 +170,7 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
     from trainer.stats.distance import spacing_coefficient
     blue = {64: drawn("poisson_disk", 64, 32, 2)}
     cs, is_blue, _ = spacing(blue)
-    assert is_blue and cs[64] == pytest.approx(spacing_coefficient(blue[64], 5.0))
+    assert is_blue and cs[64] == round(spacing_coefficient(blue[64], 5.0), 4)
     assert base_pipeline(None, cs, True) == [{"step": "thin", "drop": "crowded"},
                                              {"step": "min_spacing", "c": round(cs[64], 4)}]
     white = {256: np.random.default_rng(0).random((40, 256, 2))}
@@ -186,7 +186,8 @@ def test_spacing_is_calibrated_from_the_examples_smallest_distances():
     assert not spacing({1024: thomas(8, 1024, 1)})[1]
     seam = np.array([[[0.01, 0.5], [0.99, 0.5], [0.5, 0.2], [0.5, 0.8]]])  # close across x = 0
     assert spacing({4: seam}, toroidal=True)[0][4] == pytest.approx(0.02 * 2)
-    assert spacing({4: seam})[0][4] == pytest.approx(np.hypot(0.49, 0.3) * 2)
+    # 0.49 apart in the square: c = 1.149, above what the runtime can keep, so capped
+    assert np.hypot(0.49, 0.3) * 2 > 1.07 and spacing({4: seam})[0][4] == 1.069
     assert not spacing({256: jittered(256, 40, 1)})[1]
     # with a structure the spacing comes before it where it holds, after thinning elsewhere
     pipe = base_pipeline({"step": "n_rooks", "min_side": 16}, {256: 0.7}, True)
@@ -449,6 +450,27 @@ def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_
     # ... but not by a value whose spectrum is further off, nor where off is within 5 %
     assert decide({0: cand(0.10, 0.8), 1: cand(0.2, 0.99)}, 0, ref)[0] == 0
     assert decide({0: cand(0.10, 0.97), 1: cand(0.10, 1.0)}, 0, ref)[0] == 0
+
+
+def test_the_spacing_floor_is_what_a_card_can_hold(tiny_onnx, tmp_path):
+    """Rounded as the card holds it (a floor that rounds to 0 is none), under the runtime's
+    limit (a hexagonal lattice's smallest distance is above it), and two sets at least."""
+    import shutil
+
+    from trainer.fitting.calibrate import base_pipeline, calibrate, floor_c, spacing
+    close = np.random.default_rng(3).random((12, 1024, 2))
+    close[:, 1] = close[:, 0] + 1e-6  # one pair per set a millionth apart
+    cs, _, _ = spacing({1024: close})
+    assert cs[1024] == 0 and base_pipeline(None, cs, False) == [{"step": "thin",
+                                                                 "drop": "random"}]
+    k = 16
+    i, j = np.meshgrid(np.arange(k), np.arange(k))
+    hexa = np.stack([(i + 0.5 * (j % 2) + 0.25) / k, (j + 0.5) * np.sqrt(3) / 2 / k], -1)
+    assert floor_c(hexa.reshape(1, -1, 2) * [1, 2 / np.sqrt(3)], 5.0) < 1.07
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_onnx, path)
+    with pytest.raises(ValueError, match="at least 2 example sets at each size, got 1 at n = 64"):
+        calibrate(path, {64: close[:1, :64], 256: close[:3, :256]}, None, [])
 
 
 def test_the_spacing_rises_to_the_percentile_that_matches_the_examples_smallest_distance():

@@ -111,13 +111,22 @@ def spacing(held_in: dict[int, np.ndarray], toroidal: bool = False
     """Per size: the spacing coefficient (the examples' floor, which ``min_spacing`` keeps;
     on the torus for a toroidal model, whose step keeps it there), whether the examples
     are blue noise, and the nearest-neighbour statistic that decided it."""
-    from trainer.stats.distance import nearest_neighbour_percentile, spacing_coefficient
-    cs = {n: spacing_coefficient(sets, SPACING_PERCENTILE, toroidal=toroidal)
-          for n, sets in held_in.items()}
+    from trainer.stats.distance import nearest_neighbour_percentile
+    cs = {n: floor_c(sets, SPACING_PERCENTILE, toroidal) for n, sets in held_in.items()}
     core = {n: nearest_neighbour_percentile(sets, NN_PERCENTILE) for n, sets in held_in.items()}
     # sets with coinciding points (c = 0) have no spacing to keep, whatever the rest does
     blue = all(v >= BLUE_NOISE for v in core.values()) and min(cs.values()) > 0
     return cs, blue, core
+
+
+def floor_c(sets: np.ndarray, percentile: float, toroidal: bool = False) -> float:
+    """The spacing coefficient at ``percentile`` of the sets' smallest distance, as a card
+    holds it: rounded to 4 digits (0 where coinciding points leave nothing to keep) and
+    under the runtime's limit (a hexagonal lattice's 1.0746 in the limit of large n)."""
+    from diffsampler_rt.spacing import MAX_SPACING
+    from trainer.stats.distance import spacing_coefficient
+    c = round(spacing_coefficient(sets, percentile, toroidal=toroidal), 4)
+    return min(c, round(MAX_SPACING - 1e-3, 4))
 
 
 def in_sequence_order(sets: np.ndarray) -> bool:
@@ -169,7 +178,7 @@ def base_notes(cs: dict[int, float], blue: bool, core: dict[int, float],
               f"nearest-neighbour distance x sqrt(n): {per_size} "
               + (f"(>= {BLUE_NOISE} at every size: blue noise, crowded points thinned first)"
                  if blue else f"(below {BLUE_NOISE}: not blue noise, random thinning)")}]
-    floor = ", ".join(f"{c:.3f} at n = {n}" for n, c in sorted(cs.items()))
+    floor = ", ".join(f"{c:.4g} at n = {n}" for n, c in sorted(cs.items()))
     notes.append({"step": "min_spacing", "how": f"c = the {SPACING_PERCENTILE:g}th "
                   "percentile of the held-in sets' smallest distance"
                   + (" on the torus" if toroidal else "") + f" x sqrt(n): {floor}"
@@ -257,16 +266,12 @@ def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Ta
     held-in sets' smallest distance (:data:`SPACING_PERCENTILES`) that brings the sets'
     mean smallest distance closest to theirs (:func:`decide_spacing`), and the note; no
     change (and no note) without a spacing."""
-    from diffsampler_rt.spacing import MAX_SPACING
-    from trainer.stats.distance import spacing_coefficient
     if not any(e["step"] == "min_spacing" for e in pipeline):
         return pipeline, None
     toroidal = next(iter(goal.values())).toroidal
-    table = {p: {n: spacing_coefficient(sets, p, toroidal=toroidal) for n, sets in held_in.items()}
+    table = {p: {n: floor_c(sets, p, toroidal) for n, sets in held_in.items()}
              for p in SPACING_PERCENTILES}
-    floor, *higher = [p for p in SPACING_PERCENTILES if max(table[p].values()) < MAX_SPACING]
-    if not higher:
-        return pipeline, None
+    floor, *higher = SPACING_PERCENTILES
 
     def with_c(cs: dict[int, float]) -> list[dict]:
         return [{**e, "c": _table(cs)} if e["step"] == "min_spacing" else e for e in pipeline]
@@ -279,10 +284,11 @@ def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Ta
             + ", ".join(f"{p:g}th" for p in (floor, *higher)) + " percentile; the sets' mean "
             "smallest distance against the held-in sets' with each: " + "; ".join(
                 f"at n = {n}: " + ", ".join(f"{100 * d:+.1f} %" for d in f["smallest"].values())
-                + f" -> {f['value']:g}th (c = {table[f['value']][n]:.3f})"
+                + f" -> {f['value']:g}th (c = {table[f['value']][n]:.4g})"
                 for n, f in sorted(figures.items()))
             + f"; the percentile that comes closest where it gains more than {GAIN_SE:g} "
-            "standard errors over the floor, its spectrum no further off")
+            "standard errors over the floor, its spectrum no further off and its star L2 "
+            "not straying")
     return with_c({n: table[p][n] for n, p in chosen.items()}), {"step": "min_spacing",
                                                                   "how": text}
 
@@ -299,6 +305,10 @@ def calibrate(model_path, held_in: dict[int, np.ndarray], structure: str | None,
     density, toroidal = card.get("density"), card.get("padding") == "circular"
     to_square = (lambda sets: sets) if density is None else (lambda sets: unwarp(sets, density))
     held_in = {n: to_square(np.asarray(sets, dtype=np.float64)) for n, sets in held_in.items()}
+    few = {n: len(sets) for n, sets in held_in.items() if len(sets) < 2}
+    if few:  # the gains' standard errors need two sets at least
+        raise ValueError("calibration needs at least 2 example sets at each size, got "
+                         + ", ".join(f"{c} at n = {n}" for n, c in sorted(few.items())))
     cs, blue, core = spacing(held_in, toroidal)
     notes = base_notes(cs, blue, core, toroidal)
     entry = structure_entry(structure, structure_sizes, held_in)
