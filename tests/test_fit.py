@@ -346,8 +346,11 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
     assert "structure every set has: dyadic_net" in printed
     model = diffsampler_rt.load(out / "mine.onnx")
     steps = [e["step"] for e in model.card["pipeline"]]
-    # the examples' spacing floor, then the structure (which keeps points in their cells)
-    assert steps[:3] == ["min_spacing", "dyadic_net", "thin"]
+    # the examples' spacing floor, then the structure (which keeps points in their cells);
+    # noise steps may come first, as the briefly trained network's calibration finds them
+    from diffsampler_rt.finish import STEPS
+    assert [s for s in steps if STEPS[s].phase == "points"][:3] == [
+        "min_spacing", "dyadic_net", "thin"]
     assert model.card["fit"]["examples"]["64"] == {"sets": 20, "held_out": 8}
     pts = diffsampler_rt.generate(out / "mine.onnx", 100, 3, seed=1)
     assert pts.shape == (3, 100, 2) and np.all((pts >= 0) & (pts < 1))
