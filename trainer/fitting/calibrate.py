@@ -123,10 +123,14 @@ def floor_c(sets: np.ndarray, percentile: float, toroidal: bool = False) -> floa
     """The spacing coefficient at ``percentile`` of the sets' smallest distance, as a card
     holds it: rounded to 4 digits (0 where coinciding points leave nothing to keep) and
     under the runtime's limit (a hexagonal lattice's 1.0746 in the limit of large n)."""
-    from diffsampler_rt.spacing import MAX_SPACING
     from trainer.stats.distance import spacing_coefficient
-    c = round(spacing_coefficient(sets, percentile, toroidal=toroidal), 4)
-    return min(c, round(MAX_SPACING - 1e-3, 4))
+    return _card_c(spacing_coefficient(sets, percentile, toroidal=toroidal))
+
+
+def _card_c(c: float) -> float:
+    """A spacing coefficient as a card holds it (see :func:`floor_c`)."""
+    from diffsampler_rt.spacing import MAX_SPACING
+    return min(round(float(c), 4), round(MAX_SPACING - 1e-3, 4))
 
 
 def in_sequence_order(sets: np.ndarray) -> bool:
@@ -269,7 +273,10 @@ def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Ta
     if not any(e["step"] == "min_spacing" for e in pipeline):
         return pipeline, None
     toroidal = next(iter(goal.values())).toroidal
-    table = {p: {n: floor_c(sets, p, toroidal) for n, sets in held_in.items()}
+    from trainer.stats.distance import min_distance
+    # each size's smallest distances once, their percentiles from them (= floor_c)
+    smallest = {n: min_distance(sets, toroidal) * math.sqrt(n) for n, sets in held_in.items()}
+    table = {p: {n: _card_c(np.percentile(d, p)) for n, d in smallest.items()}
              for p in SPACING_PERCENTILES}
     floor, *higher = SPACING_PERCENTILES
 
