@@ -44,6 +44,9 @@ SLOW_SETS = {"gbn_blob": {64: 32, 256: 16}, "sot_ramp": {64: 32, 256: 32, 1024: 
 #: models learned from few sets are calibrated from no more held-in sets than they learned
 #: from (sot_32: 32 SOT sets a size; fewer at 1024, where SOT is slow)
 MODEL_SETS = {"sot_32": {64: 32, 256: 32, 1024: 20}}
+#: sets a side at sizes beyond the trained ones (--sizes 4096): as many points as 16 sets
+#: of 4096, the calibration's own count there (``trainer.fitting.choice.search_sets``)
+LARGE_POINTS = 16 * 4096
 
 
 def _fit_bench_sets(sampler: str, n: int) -> np.ndarray | None:
@@ -105,7 +108,9 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False,
     network = ROOT / "models" / f"{entry['network']}.onnx"
     card = diffsampler_rt.Model(network).card
     sampler = card["sampler"]
-    counts = MODEL_SETS.get(name, SLOW_SETS.get(sampler, {n: sets for n in sizes}))
+    given = MODEL_SETS.get(name, SLOW_SETS.get(sampler))
+    counts = dict(given) if given else {n: sets for n in sizes if n <= max(SIZES)}
+    counts.update({n: LARGE_POINTS // n for n in sizes if n > max(SIZES) and n not in counts})
     # the default sizes where the network was trained at them; sizes asked for beyond them
     sizes = [n for n in sizes if n in counts and (n in card["trained_sizes"] or n not in SIZES)]
     t = time.monotonic()

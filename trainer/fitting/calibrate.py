@@ -27,7 +27,7 @@
    come closer than the examples do: to the 15th, 30th or 50th percentile of their smallest
    distance, size by size, where that brings the sets' mean smallest distance closer to the
    held-in sets' by more than three standard errors (values from the same seeds, their
-   spectrum no further off, their star L2 not straying).
+   spectrum no further off, their integration figures not straying).
 3. **Searched steps** (:data:`SEARCHES`, in that order): the starting noise's temperature (a
    gain on every mode: a colder start gives more ordered sets), its coarse-mode gain, the
    structure imposed on the last solver steps' predictions (where a structure holds), sliced
@@ -40,11 +40,14 @@
    with the smallest difference where its gain over the pipeline without the step is real:
    every candidate is made from the same seeds, and the gain must exceed three standard
    errors, taken from the gains in eight folds (every eighth generated set against every
-   eighth held-in set); else none. A step no size gets is left out. A value whose sets' star
-   L2 discrepancy is more than 5 % further from the held-in sets' than without the step (and
-   beyond two standard errors) is not taken. Where the spectrum cannot tell the values apart
-   and the sets miss the held-in sets' star L2 by more than 5 %, the value that brings it
-   closest (by more than three standard errors, its spectrum no further off) is taken. Steps
+   eighth held-in set); else none. A step no size gets is left out. The sets' integration
+   figures hold the spectrum to account: a value whose sets' mean star L2 discrepancy or
+   mean Gaussian integration error (random anisotropic Gaussians: smooth integrands, whose
+   error follows the largest scales) is more than 5 % further from the held-in sets' than
+   without the step (and beyond two standard errors) is not taken. Where the spectrum cannot
+   tell the values apart and the sets miss one of these figures by more than 5 % (and two
+   standard errors of the held-in sets' mean), the value that brings it closest (by more
+   than three standard errors, its spectrum no further off) is taken, star L2 first. Steps
    acting on the points are not searched where a structure step holds (they would move
    points off it).
 
@@ -60,7 +63,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .choice import GAIN_SE, L2_TOLERANCE, Target, choose, decide_spacing, targets
+from .choice import GAIN_SE, TOLERANCE, Target, choose, decide_spacing, targets
 
 #: the 1st percentile of the nearest-neighbour distance x sqrt(n) from which examples count
 #: as blue noise: halfway (in ratio) between jittered grids' 0.16 and perturbed lattices' 0.45
@@ -245,22 +248,35 @@ def search(model_path, pipeline: list[dict], how: Search, held_in, goal: dict, s
                              goal, memo=memo, key=lambda v: _key(with_value(v)))
     text = ((f"{how.what}: " if how.what else "")
             + f"log radial spectrum, mean absolute difference from the held-in sets' with "
-            f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: " + "; ".join(
-                f"at n = {n}: " + ", ".join(f"{m:.4f}" for m in f["difference"].values())
-                + (f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
-                   if f["best"] != how.off else " (none closer than leaving it out; ")
-                + "star L2 "
-                + ", ".join(f"{100 * d:+.1f} %" for d in f["l2_star"].values())
-                + f") -> {f['value']:g}" + (" (by star L2)" if f["by"] == "star L2" else "")
-                for n, f in sorted(figures.items())))
+            f"{how.param} {', '.join(f'{v:g}' for v in (how.off, *how.values))}: "
+            + "; ".join(f"at n = {n}: " + _decision_text(f, how.off)
+                        for n, f in sorted(figures.items())))
     if all(v == how.off for v in chosen.values()):
-        return pipeline, {"step": how.step, "how": text + f": no value's gain over none "
-                          f"exceeds {GAIN_SE:g} standard errors, left out"}
+        return pipeline, {"step": how.step, "how": text + ": no value taken (none gains over "
+                          f"none by more than {GAIN_SE:g} standard errors with its "
+                          "integration figures in bounds, nor mends one), left out"}
     return with_value(_table(chosen, 3)), {"step": how.step, "how": text + "; the value with "
                                            "the smallest difference where its gain over none "
                                            f"exceeds {GAIN_SE:g} standard errors; where none "
-                                           "does and the star L2 misses by more than "
-                                           f"{100 * L2_TOLERANCE:g} %, the value that mends it"}
+                                           "does and an integration figure misses by more "
+                                           f"than {100 * TOLERANCE:g} %, the value that mends it"}
+
+
+#: how a decision's integration figures are named in a note
+_FIGURE_NAMES = {"l2_star": "star L2", "gauss_mse": "Gaussian integration"}
+
+
+def _decision_text(f: dict, off: Any) -> str:
+    """One size's decision in a search's note: the differences, the best value and its
+    error, each integration figure against the held-in sets', the value and why."""
+    figs = "; ".join(_FIGURE_NAMES[k] + " " + ", ".join(f"{100 * d:+.1f} %" for d in
+                                                         f[k].values())
+                     for k in _FIGURE_NAMES if k in f)
+    return (", ".join(f"{m:.4f}" for m in f["difference"].values())
+            + (f" (best {f['best']:g}: its gain's standard error {f['gain_se']:.4f}; "
+               if f["best"] != off else " (none closer than leaving it out; ")
+            + figs + f") -> {f['value']:g}" + (f" (by {f['by']})" if f["by"] not in
+                                                (None, "spectrum") else ""))
 
 
 def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Target],
@@ -294,8 +310,8 @@ def spacing_search(model_path, pipeline: list[dict], held_in, goal: dict[int, Ta
                 + f" -> {f['value']:g}th (c = {table[f['value']][n]:.4g})"
                 for n, f in sorted(figures.items()))
             + f"; the percentile that comes closest where it gains more than {GAIN_SE:g} "
-            "standard errors over the floor, its spectrum no further off and its star L2 "
-            "not straying")
+            "standard errors over the floor, its spectrum no further off and its integration "
+            "figures not straying")
     return with_c({n: table[p][n] for n, p in chosen.items()}), {"step": "min_spacing",
                                                                   "how": text}
 
