@@ -483,6 +483,29 @@ def test_gaussian_integration_vetoes_a_spectrum_gain_and_mends_a_miss_like_star_
                   Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7))[0] == 1
 
 
+def test_a_gross_integration_miss_is_mended_first_even_at_a_cost_to_the_spectrum():
+    """Sets that integrate Gaussians ten times worse than the examples (power at scales
+    below the spectrum's first bin) take the value that brings it within a factor 2 and
+    closest, though their spectrum is further off; not a value still beyond the factor,
+    nor where the spectrum's own choice is within it."""
+    from trainer.fitting.choice import Measured, Target, decide
+    rng = np.random.default_rng(4)
+
+    def cand(difference: float, gauss: float) -> Measured:
+        folds = difference + rng.normal(0, 1e-4, 8)
+        return Measured(float(folds.mean()), folds, 1 + rng.normal(0, 1e-3, 64),
+                        np.full(64, 0.7), gauss * (1 + rng.normal(0, 1e-2, 64)))
+
+    ref = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7, gauss=1.0,
+                 se={"l2": 0.01, "gauss": 0.01})
+    value, f = decide({0: cand(0.08, 10.0), 5: cand(0.09, 1.8), 12: cand(0.10, 0.78),
+                       24: cand(0.12, 0.46)}, 0, ref)
+    assert value == 12 and f["by"] == "Gaussian integration, missed beyond a factor 2"
+    assert decide({0: cand(0.08, 10.0), 5: cand(0.09, 3.0)}, 0, ref)[0] == 0
+    value, f = decide({0: cand(0.10, 10.0), 24: cand(0.05, 1.1), 12: cand(0.09, 1.0)}, 0, ref)
+    assert value == 24 and f["by"] == "spectrum"
+
+
 def test_the_spacing_floor_is_what_a_card_can_hold(tiny_onnx, tmp_path):
     """Rounded as the card holds it (a floor that rounds to 0 is none), under the runtime's
     limit (a hexagonal lattice's smallest distance is above it), and two sets at least."""

@@ -47,7 +47,12 @@
    without the step (and beyond two standard errors) is not taken. Where the spectrum cannot
    tell the values apart and the sets miss one of these figures by more than 5 % (and two
    standard errors of the held-in sets' mean), the value that brings it closest (by more
-   than three standard errors, its spectrum no further off) is taken, star L2 first. Steps
+   than three standard errors, its spectrum no further off) is taken, star L2 first. A
+   gross miss (a figure more than twice the held-in sets', or under half) is mended first,
+   where the spectrum's own choice leaves it: the value that brings it within that factor
+   and closest is taken, its spectrum further off or not. The spectrum's bins start at
+   0.0625 sqrt(n), so what sits at the largest scales (a density's or the network's
+   leftover power, at 4096 points the first four frequencies) shows only there. Steps
    acting on the points are not searched where a structure step holds (they would move
    points off it).
 

@@ -30,6 +30,10 @@ LOG_FLOOR = 1e-3
 #: star L2 discrepancy, mean Gaussian integration error) may stray from the held-in sets'
 #: and still be taken, and beyond which a miss is repaired: the fit targets' tolerance
 TOLERANCE = 0.05
+#: the factor beyond which an integration figure's miss is gross: the spectrum's bins start at
+#: 0.0625 sqrt(n), so the largest scales (a density's or the network's leftover power
+#: there) show only in these figures, and a gross miss is mended before the spectrum decides
+GROSS = 2.0
 #: the smooth integrands of the Gaussian integration figure (fixed: every set sees the same)
 GAUSSIANS, GAUSSIANS_SEED = 256, 11
 _EXACT: dict = {}
@@ -152,6 +156,16 @@ class Figure:
     def relative(self, v: Any) -> float:
         return float(self.per_set[v].mean()) / self.ref - 1
 
+    def log_miss(self, v: Any) -> float:
+        """|log| of ``v``'s figure over the held-in sets' (0 where theirs is 0)."""
+        mean = float(self.per_set[v].mean())
+        return abs(math.log(mean / self.ref)) if mean > 0 and self.ref > 0 else 0.0
+
+    def gross(self, v: Any) -> bool:
+        """Whether ``v``'s figure is more than :data:`GROSS` times, or less than 1 /
+        :data:`GROSS` times, the held-in sets'."""
+        return self.log_miss(v) > math.log(GROSS)
+
     def allowed(self) -> float:
         """How far a figure may stray before it counts: :data:`TOLERANCE` of the held-in
         sets' figure, or two standard errors of their mean where that is more."""
@@ -185,8 +199,13 @@ def decide(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dic
     best = min(fair, key=lambda v: cands[v].difference)
     gains = o.folds - cands[best].folds
     gain_se = _mean_se(gains)
+    spectral = best if o.difference - cands[best].difference > GAIN_SE * gain_se else off
     value, by = off, None
-    if o.difference - cands[best].difference > GAIN_SE * gain_se:
+    if any(f.gross(spectral) for f in figs):  # mended first, where a value can
+        value, by = _mend_gross(cands, off, fair, figs)
+    if value != off:
+        pass
+    elif spectral != off:
         value, by = best, "spectrum"
     else:  # the spectrum cannot tell them apart: repair a missed integration figure
         level = [v for v in fair if v != off and _not_worse(cands[v], o)]
@@ -201,6 +220,21 @@ def decide(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dic
                 for f in figs})
     return value, {**out, "best": best, "gain_se": round(gain_se, 5),
                    "fold_gains": [round(float(g), 5) for g in gains], "value": value, "by": by}
+
+
+def _mend_gross(cands: dict[Any, Measured], off: Any, fair: list, figs: list[Figure]
+                ) -> tuple[Any, str | None]:
+    """Where ``off`` misses an integration figure grossly (:data:`GROSS`), the fair value
+    that brings it within that factor and closest (in ratio), if it gains more than
+    :data:`GAIN_SE` paired standard errors, and why; else ``off``. Its spectrum may be
+    further off: the spectrum does not see the scales such a miss comes from."""
+    for f in (f for f in figs if f.gross(off)):
+        within = [v for v in fair if v != off and not f.gross(v)]
+        mended = min(within, key=f.log_miss, default=off)
+        if mended != off and f.miss(off) - f.miss(mended) > GAIN_SE * _paired_se(
+                f.per_set[mended], f.per_set[off]):
+            return mended, f"{f.name}, missed beyond a factor {GROSS:g}"
+    return off, None
 
 
 #: the keys of the integration figures in a decision's record
@@ -257,7 +291,10 @@ def choose(values: tuple, off: Any, generate: Callable[[Any], Callable[[int, int
     Where no value's spectrum gain is real and ``off`` misses an integration figure by more
     than :data:`TOLERANCE` (and two standard errors of the held-in sets' mean), the value
     that comes closest is taken if it gains more than three paired standard errors there
-    without a spectrum further off (beyond two standard errors); star L2 first."""
+    without a spectrum further off (beyond two standard errors); star L2 first. Where the
+    value the spectrum would take leaves an integration figure more than :data:`GROSS`
+    times off (or under 1 / GROSS), the fair value that brings it within that factor and
+    closest is taken first, its spectrum further off or not (:func:`_mend_gross`)."""
     goal = goal or targets(held_in)
     memo = {} if memo is None else memo
     rule = rule or decide
