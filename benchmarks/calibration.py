@@ -174,8 +174,10 @@ def report(results: list[dict], command: str) -> str:
              "mean; ✗: beyond twice its noise (the fit report's verdict). Non-uniform models "
              "after the exact unwarping. The searched steps are taken only where they beat "
              "leaving them out by more than three standard errors of the gain on the held-in "
-             "sets, so few sets keep a card short; what a card carries for sizes the examples "
-             "lack (4096 and up, a thinned "
+             "sets, so few sets keep a card short, and the integration figures (star L2, "
+             "Gaussian integration error) veto and mend as the module says; each step's note "
+             "lists every candidate's figures. What a card carries for sizes the examples "
+             "lack (above the largest size a model has sets of, a thinned "
              "set's restore cut, a net's first-n prefix) cannot be chosen here and shows as "
              "a difference in the steps, not in these figures.", ""]
     lines += ["## Summary at each model's largest example size", "",
