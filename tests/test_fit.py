@@ -455,29 +455,40 @@ def test_star_l2_vetoes_only_beyond_its_tolerance_and_mends_a_miss_the_spectrum_
     assert decide({0: cand(0.10, 0.97), 1: cand(0.10, 1.0)}, 0, ref)[0] == 0
 
 
+def _gauss_candidates(seed: int, noise: float):
+    """``cand(difference, gauss)``: a candidate's measurements with that spectrum
+    difference and mean Gaussian integration error (per-set relative noise ``noise``)."""
+    from trainer.fitting.choice import Measured
+    rng = np.random.default_rng(seed)
+
+    def cand(difference: float, gauss: float) -> Measured:
+        folds = difference + rng.normal(0, 1e-4, 8)
+        return Measured(float(folds.mean()), folds, 1 + rng.normal(0, 1e-3, 64),
+                        np.full(64, 0.7), gauss * (1 + rng.normal(0, noise, 64)))
+    return cand
+
+
+def _gauss_target(gauss_se: float):
+    """Held-in sets whose figures are all 1 (smallest distance 0.7), the Gaussian
+    integration error's mean known to ``gauss_se``."""
+    from trainer.fitting.choice import Target
+    return Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7, gauss=1.0,
+                  se={"l2": 0.01, "gauss": gauss_se})
+
+
 def test_gaussian_integration_vetoes_a_spectrum_gain_and_mends_a_miss_like_star_l2():
     """The smooth integrands' error is held to the held-in sets' as the star L2 is: a
     closer spectrum that integrates Gaussians 20 % worse than without the step is not
     taken; where the spectrum cannot tell values apart, the one that mends a miss is,
     unless the miss is within the noise of the held-in sets' own mean."""
-    from trainer.fitting.choice import Measured, Target, decide
-    rng = np.random.default_rng(2)
-
-    def cand(difference: float, gauss: float) -> Measured:
-        folds = difference + rng.normal(0, 1e-4, 8)
-        return Measured(float(folds.mean()), folds, 1 + rng.normal(0, 1e-3, 64),
-                        np.full(64, 0.7), gauss * (1 + rng.normal(0, 1e-3, 64)))
-
-    ref = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7, gauss=1.0,
-                 se={"l2": 0.01, "gauss": 0.01})
+    from trainer.fitting.choice import Target, decide
+    cand, ref = _gauss_candidates(2, 1e-3), _gauss_target(0.01)
     value, f = decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.2)}, 0, ref)
     assert value == 0 and f["best"] == 0 and f["gauss_mse"]["1"] == pytest.approx(0.2, abs=0.01)
     assert decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.03)}, 0, ref)[0] == 1
     value, f = decide({0: cand(0.10, 1.3), 1: cand(0.10, 1.02)}, 0, ref)
     assert value == 1 and f["by"] == "Gaussian integration"
-    noisy = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7, gauss=1.0,
-                   se={"l2": 0.01, "gauss": 0.2})
-    assert decide({0: cand(0.10, 1.3), 1: cand(0.10, 1.02)}, 0, noisy)[0] == 0
+    assert decide({0: cand(0.10, 1.3), 1: cand(0.10, 1.02)}, 0, _gauss_target(0.2))[0] == 0
     # without the figure (not measured) the closer spectrum is taken
     assert decide({0: cand(0.10, 1.0), 1: cand(0.05, 1.2)}, 0,
                   Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7))[0] == 1
@@ -488,16 +499,8 @@ def test_a_gross_integration_miss_is_mended_first_even_at_a_cost_to_the_spectrum
     below the spectrum's first bin) take the value that brings it within a factor 2 and
     closest, though their spectrum is further off; not a value still beyond the factor,
     nor where the spectrum's own choice is within it."""
-    from trainer.fitting.choice import Measured, Target, decide
-    rng = np.random.default_rng(4)
-
-    def cand(difference: float, gauss: float) -> Measured:
-        folds = difference + rng.normal(0, 1e-4, 8)
-        return Measured(float(folds.mean()), folds, 1 + rng.normal(0, 1e-3, 64),
-                        np.full(64, 0.7), gauss * (1 + rng.normal(0, 1e-2, 64)))
-
-    ref = Target(np.ones(79), [np.ones(79)] * 8, 1.0, 0.7, gauss=1.0,
-                 se={"l2": 0.01, "gauss": 0.01})
+    from trainer.fitting.choice import decide
+    cand, ref = _gauss_candidates(4, 1e-2), _gauss_target(0.01)
     value, f = decide({0: cand(0.08, 10.0), 5: cand(0.09, 1.8), 12: cand(0.10, 0.78),
                        24: cand(0.12, 0.46)}, 0, ref)
     assert value == 12 and f["by"] == "Gaussian integration, missed beyond a factor 2"
