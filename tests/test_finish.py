@@ -255,28 +255,39 @@ def test_format_1_cards_convert_to_the_same_steps():
 
 
 def test_a_format_1_file_loads_and_makes_the_same_sets(tmp_path):
-    # every bundled file is format 2; a format-1 copy of one must give the same sets
+    # every bundled file is format 2; a format-1 card (its steps as top-level keys) must
+    # read as the format-2 pipeline it stands for and give the same sets
     import json
 
     import onnx
 
     import diffsampler_rt
     from diffsampler_rt.card import CARD_KEY
-    src = diffsampler_rt.load("sot_fast")
-    model = onnx.load(str(src.path))
+    model = onnx.load(str(diffsampler_rt.load("sot_fast").path))
     card = json.loads(next(p.value for p in model.metadata_props if p.key == CARD_KEY))
+    table = lambda n, v: {"n": n, "values": v}  # noqa: E731
+    new = {**card, "pipeline": [
+        {"step": "thin", "drop": "crowded", "restore_cut": 0.4},
+        {"step": "sliced_ot", "directions": 128, "step_size": 1.5,
+         "iterations": table([256, 1024, 4096], [4, 12, 20])},
+        {"step": "even_out", "cut": table([256, 576, 1024, 4096], [0.5] * 4),
+         "gain": table([256, 576, 1024, 4096], [0.25, 0.3, 0.27, 0.1])},
+        {"step": "min_spacing", "c": table([64, 256, 1024], [0.6625, 0.6211, 0.5777])}]}
     old = {k: v for k, v in card.items() if k != "pipeline"}
     old.update(format_version=1, min_spacing={"n": [64, 256, 1024], "c": [0.6625, 0.6211, 0.5777]},
                even_out={"cut": [0.5] * 4, "gain": [0.25, 0.3, 0.27, 0.1], "n": [256, 576, 1024, 4096]},
                restore_cut=0.4, sliced_ot={"directions": 128, "iterations": [4, 12, 20],
                                            "n": [256, 1024, 4096], "step": 1.5})
-    for p in model.metadata_props:
-        if p.key == CARD_KEY:
-            p.value = json.dumps(old)
-    onnx.save(model, str(tmp_path / "old.onnx"))
-    legacy_model = diffsampler_rt.Model(tmp_path / "old.onnx")
-    assert legacy_model.card["pipeline"] == src.card["pipeline"]
-    np.testing.assert_array_equal(legacy_model.generate(200, 2, seed=4), src.generate(200, 2, seed=4))
+    models = {}
+    for name, c in (("new", new), ("old", old)):
+        for p in model.metadata_props:
+            if p.key == CARD_KEY:
+                p.value = json.dumps(c)
+        onnx.save(model, str(tmp_path / f"{name}.onnx"))
+        models[name] = diffsampler_rt.Model(tmp_path / f"{name}.onnx")
+    assert models["old"].card["pipeline"] == models["new"].card["pipeline"]
+    np.testing.assert_array_equal(models["old"].generate(200, 2, seed=4),
+                                  models["new"].generate(200, 2, seed=4))
 
 
 def test_every_bundled_card_is_format_2_and_describes_its_steps():

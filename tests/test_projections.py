@@ -107,10 +107,7 @@ def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_co
     src = diffsampler_rt.model.resolve("sot_32_fast")
     path = bundled_copy("sot_32_fast")
     steps = [e["step"] for e in diffsampler_rt.load(path).card["pipeline"]]
-    at = steps.index("projection_gain")  # after the evening, before the spacing
-    assert export_main(["pipeline", str(path), "--remove", "projection_gain"]) == 0
-    assert "projection" not in capsys.readouterr().out
-    assert find(diffsampler_rt.load(path).card["pipeline"], "projection_gain") is None
+    at = steps.index("min_spacing")  # after the evening, before the spacing
     plain = diffsampler_rt.generate(path, 256, 2, seed=4)
     assert export_main(["pipeline", str(path), "--add", "projection_gain", "--at", str(at),
                         "--gain", "64:1,256:1.2"]) == 0
@@ -126,6 +123,13 @@ def test_card_projection_gain_is_applied_validated_and_set_by_the_cli(bundled_co
                                   diffsampler_rt.generate(src, 64, 1, seed=4))
     np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4, structure=False),
                                   diffsampler_rt.generate(src, 256, 2, seed=4, structure=False))
+    assert export_main(["pipeline", str(path), "--remove", "projection_gain"]) == 0
+    assert "projection" not in capsys.readouterr().out
+    assert find(diffsampler_rt.load(path).card["pipeline"], "projection_gain") is None
+    np.testing.assert_array_equal(diffsampler_rt.generate(path, 256, 2, seed=4), plain)
+    assert export_main(["pipeline", str(path), "--add", "projection_gain", "--at", str(at),
+                        "--gain", "64:1,256:1.2"]) == 0
+    capsys.readouterr()
     for bad in ("2", "x", "64:1,256"):
         pipeline_refused(path, ["--update", "projection_gain", "--gain", bad], capsys,
                  "step 'projection_gain': 'gain' must be a number in [0.5, 1.5]", bad)
