@@ -265,7 +265,7 @@ def test_a_format_1_file_loads_and_makes_the_same_sets(tmp_path):
     from diffsampler_rt.card import CARD_KEY
     model = onnx.load(str(diffsampler_rt.load("sot_fast").path))
     card = json.loads(next(p.value for p in model.metadata_props if p.key == CARD_KEY))
-    table = lambda n, v: {"n": n, "values": v}  # noqa: E731
+    table = lambda n, v: {"n": n, "values": v}
     new = {**card, "pipeline": [
         {"step": "thin", "drop": "crowded", "restore_cut": 0.4},
         {"step": "sliced_ot", "directions": 128, "step_size": 1.5,
