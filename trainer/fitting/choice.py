@@ -8,6 +8,7 @@ value's effect varies from set to set.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -36,7 +37,14 @@ TOLERANCE = 0.05
 GROSS = 2.0
 #: the smooth integrands of the Gaussian integration figure (fixed: every set sees the same)
 GAUSSIANS, GAUSSIANS_SEED = 256, 11
-_EXACT: dict = {}
+
+
+@functools.cache
+def _gaussians():
+    """The Gaussian integrands and their exact integrals, made once per process."""
+    from trainer.stats.integration import Gaussians
+    f = Gaussians.random(GAUSSIANS, seed=GAUSSIANS_SEED)
+    return f, f.integrals()
 
 
 def gaussian_mse(sets: np.ndarray) -> np.ndarray:
@@ -44,11 +52,8 @@ def gaussian_mse(sets: np.ndarray) -> np.ndarray:
     Gaussians (``trainer.stats.Gaussians``) with the set's points. Smooth integrands'
     error follows the sets' power at the largest scales, which neither the spectrum's
     peak nor the star L2 discrepancy (boxes anchored at the origin) weighs alone."""
-    from trainer.stats.integration import Gaussians, integration_mse
-    if not _EXACT:  # once per process
-        _EXACT["f"] = Gaussians.random(GAUSSIANS, seed=GAUSSIANS_SEED)
-        _EXACT["exact"] = _EXACT["f"].integrals()
-    return integration_mse(sets, _EXACT["f"], _EXACT["exact"])
+    from trainer.stats.integration import integration_mse
+    return integration_mse(sets, *_gaussians())
 
 
 def search_sets(n: int) -> int:
@@ -203,23 +208,28 @@ def decide(cands: dict[Any, Measured], off: Any, goal: Target) -> tuple[Any, dic
     value, by = off, None
     if any(f.gross(spectral) for f in figs):  # mended first, where a value can
         value, by = _mend_gross(cands, off, fair, figs)
-    if value != off:
-        pass
-    elif spectral != off:
-        value, by = best, "spectrum"
-    else:  # the spectrum cannot tell them apart: repair a missed integration figure
-        level = [v for v in fair if v != off and _not_worse(cands[v], o)]
-        for f in (f for f in figs if f.miss(off) > f.allowed()):
-            mended = min(level, key=f.miss, default=off)
-            if mended != off and f.miss(off) - f.miss(mended) > GAIN_SE * _paired_se(
-                    f.per_set[mended], f.per_set[off]):
-                value, by = mended, f.name
-                break
+    if value == off:  # where the spectrum cannot tell them apart, mend a missed figure
+        value, by = (best, "spectrum") if spectral != off else _mend(cands, off, fair, figs)
     out = {"difference": {f"{v:g}": round(c.difference, 5) for v, c in cands.items()}}
     out.update({_FIGURE_KEYS[f.name]: {f"{v:g}": round(f.relative(v), 4) for v in cands}
                 for f in figs})
     return value, {**out, "best": best, "gain_se": round(gain_se, 5),
                    "fold_gains": [round(float(g), 5) for g in gains], "value": value, "by": by}
+
+
+def _mend(cands: dict[Any, Measured], off: Any, fair: list, figs: list[Figure]
+          ) -> tuple[Any, str | None]:
+    """The fair value, its spectrum no further off than ``off``'s, that brings the first
+    integration figure ``off`` misses (beyond :meth:`Figure.allowed`) closest, if it gains
+    more than :data:`GAIN_SE` paired standard errors there, and the figure's name; else
+    ``off``."""
+    level = [v for v in fair if v != off and _not_worse(cands[v], cands[off])]
+    for f in (f for f in figs if f.miss(off) > f.allowed()):
+        mended = min(level, key=f.miss, default=off)
+        if mended != off and f.miss(off) - f.miss(mended) > GAIN_SE * _paired_se(
+                f.per_set[mended], f.per_set[off]):
+            return mended, f.name
+    return off, None
 
 
 def _mend_gross(cands: dict[Any, Measured], off: Any, fair: list, figs: list[Figure]
