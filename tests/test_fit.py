@@ -4,6 +4,7 @@ resumption, data-parallel training, and one small fit end to end."""
 from __future__ import annotations
 
 import functools
+import json
 import math
 import re
 
@@ -271,30 +272,44 @@ def test_a_density_model_is_calibrated_in_the_square(tiny_onnx, tmp_path):
 
 # ---- training: resumption and data parallelism ---------------------------------------------
 
-def tiny_fit_trainer(run_dir, pools, seed=0):
+def tiny_fit_trainer(run_dir, pools, seed=0, bf16=False):
+    from dataclasses import replace
+
     from trainer.fitting.data import ExampleBatches
     from trainer.train import Trainer
 
     from .conftest import tiny_config
-    cfg = tiny_config(sampler="examples:t")
+    cfg = replace(tiny_config(sampler="examples:t"), bf16=bf16)
     batches = ExampleBatches(pools, {4: 4, 8: 2}, 2.0, (0, 1))
     return Trainer(cfg, run_dir, progress=False, batches=batches)
 
 
-def test_a_restarted_fit_resumes_to_the_same_weights(tmp_path):
+@pytest.mark.parametrize("bf16", [False, True])
+def test_a_restarted_fit_resumes_to_the_same_weights(tmp_path, bf16):
     torch = pytest.importorskip("torch")
     from trainer.embedding import embed
+    from trainer.train import native_bf16
+    if bf16 and not native_bf16(torch.device("cpu")):
+        pytest.skip("bf16 autocast is emulated on this CPU (fit trains in float32 here)")
     pools = {4: embed(jittered(16, 10, 0), "stratified").astype(np.float32),
              8: embed(jittered(64, 10, 1), "stratified").astype(np.float32)}
-    whole = tiny_fit_trainer(tmp_path / "a", pools)
+    whole = tiny_fit_trainer(tmp_path / "a", pools, bf16=bf16)
     whole.run(until_step=6)
-    first = tiny_fit_trainer(tmp_path / "b", pools)
+    first = tiny_fit_trainer(tmp_path / "b", pools, bf16=bf16)
     first.run(until_step=3)  # "killed" after its checkpoint at step 3
-    again = tiny_fit_trainer(tmp_path / "b", pools)
+    again = tiny_fit_trainer(tmp_path / "b", pools, bf16=bf16)
     assert again.step == 3
     again.run(until_step=6)
     for (k, a), b in zip(whole.model.state_dict().items(), again.model.state_dict().values()):
         assert torch.equal(a, b), k
+
+
+def test_a_fit_trains_in_bf16_only_where_the_device_computes_it_natively():
+    torch = pytest.importorskip("torch")
+    from trainer.fitting.run import uses_bf16
+    from trainer.train import native_bf16
+    assert uses_bf16(None, "cpu") is native_bf16(torch.device("cpu"))
+    assert uses_bf16(False, "cpu") is False and uses_bf16(True, "cpu") is True
 
 
 def _ddp_worker(rank: int, world: int, init: str, out: str) -> None:
@@ -352,6 +367,9 @@ def test_a_small_fit_end_to_end(tmp_path, capsys):
     assert [s for s in steps if STEPS[s].phase == "points"][:3] == [
         "min_spacing", "dyadic_net", "thin"]
     assert model.card["fit"]["examples"]["64"] == {"sets": 20, "held_out": 8}
+    from trainer.fitting.run import uses_bf16
+    saved = json.loads((out / "mine.run" / "fit_config.json").read_text())
+    assert saved["bf16"] is uses_bf16(None, "cpu")
     pts = diffsampler_rt.generate(out / "mine.onnx", 100, 3, seed=1)
     assert pts.shape == (3, 100, 2) and np.all((pts >= 0) & (pts < 1))
     report = (out / "mine.report.md").read_text()

@@ -195,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--net", default="standard", choices=["standard", "small"],
                    help="standard: the shipped models' network (needed by --init); small: "
                         "quick trials")
+    f.add_argument("--fp32", action="store_true",
+                   help="train in float32 where the device computes bfloat16 natively (by "
+                        "default fit trains with bf16 autocast there: about 1.6x the steps)")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--no-progress", action="store_true")
 
@@ -236,7 +239,7 @@ def _fit(args: argparse.Namespace) -> None:
         minutes=DEFAULT_MINUTES if args.minutes is None else args.minutes, init=args.init,
         device=args.device, symmetries=_symmetries(args.symmetries), toroidal=args.toroidal,
         seed=args.seed, threads=args.threads, net=args.net, fast=args.fast,
-        progress=not args.no_progress)
+        bf16=False if args.fp32 else None, progress=not args.no_progress)
 
 
 def _calibrate(args: argparse.Namespace) -> None:
