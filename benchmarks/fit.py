@@ -90,8 +90,9 @@ def fit_files(case: str, files: list[Path], work: Path, minutes: float,
         shutil.copy(out / f"{case}{suffix}", keep / f"{case}{suffix}")
     trained = next((line for line in proc.stdout.splitlines() if line.startswith("trained")),
                    "")
+    config = json.loads((out / f"{case}.run" / "fit_config.json").read_text())
     return {"case": case, "wall_s": wall, "figures": figures, "resumed": resumed,
-            "trained": trained}
+            "trained": trained, "bf16": config["bf16"]}
 
 
 def run_fit(case: str, work: Path, minutes: float) -> dict:
@@ -141,6 +142,13 @@ def relative(x: dict | None) -> str:
             f"(+-{100 * x['noise'] / x['reference']:.1f})" if x else "n/a")
 
 
+def training(r: dict) -> str:
+    """'S of T steps, precision' from a row's 'trained ...' line and its config."""
+    words = (r.get("trained") or "").split()
+    steps = " ".join(words[1:5]) if len(words) >= 5 else "steps not recorded"
+    return f"{steps}, {'bf16' if r.get('bf16') else 'float32'}"
+
+
 def verdicts(f: dict) -> str:
     """A size's figures' verdicts, one clause each."""
     return "; ".join(f"{k.split(',')[0]}: {v['verdict']}" for k, v in f.items()
@@ -156,17 +164,19 @@ def report(results: list[dict], args) -> str:
              f"({os.cpu_count()} cores) (each row names its run), each fit "
              "one process with one thread, default settings otherwise. Each case's sets are "
              "drawn from the built-in sampler, written to files (`.npy`, or one `x y` text file "
-             "a set), then fitted from the files. Figures at n = 1024 against the held-out "
+             "a set), then fitted from the files. The training column gives the steps the "
+             "budget held and the precision (fit trains with bf16 autocast where the CPU "
+             "computes it natively; rows from before that record float32). Figures at n = 1024 against the held-out "
              "example sets (never trained or calibrated on); the full per-size reports are the "
              "fits' own, in [fit/](fit/) (`CASE.report.md` and `.png`).", "",
-             "| case | run | wall time | spectrum MAE (floor) | target | smallest distance | "
-             "star L2 | verdicts |", "|---|---|---|---|---|---|---|---|"]
+             "| case | run | wall time | training | spectrum MAE (floor) | target | "
+             "smallest distance | star L2 | verdicts |", "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         if r["case"] == "memory":
             continue
         if "error" in r:
             lines.append(f"| {r['case']} | {runs.index(r['command']) + 1} | "
-                         f"{r['wall_s'] / 60:.1f} min | failed: {r['error']} | | | | |")
+                         f"{r['wall_s'] / 60:.1f} min | | failed: {r['error']} | | | | |")
             continue
         f = r["figures"].get("1024") or r["figures"][max(r["figures"], key=int)]
         spec = _fig(f, "radial spectrum")
@@ -177,7 +187,7 @@ def report(results: list[dict], args) -> str:
             f"<= 2x floor: {'met' if spec['generated'] <= 2 * spec['noise'] else '**missed**'}"
         lines.append(f"| {r['case']}{' (--init ' + r['init'] + ')' if r['init'] else ''} | "
                      f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min"
-                     f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {spec['generated']:.4f} ({spec['noise']:.4f})"
+                     f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {training(r)} | {spec['generated']:.4f} ({spec['noise']:.4f})"
                      f" | {target} | {relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     missing = [c for c in list(CASES) + ["memory"] if c not in {r["case"] for r in results}]
     if missing:
