@@ -124,7 +124,7 @@ def run_model(name: str, sets: int, seed: int, adopt: bool = False,
         shutil.copy(network, copy)
         t = time.monotonic()
         calibrated = calibrate(copy, held_in, analysis.structure, analysis.structure_sizes,
-                               seed=seed, log=lambda _: None)
+                               seed=seed, log=lambda line: print(f"{name}: {line}", flush=True))
         calibrate_s = time.monotonic() - t
         square = _square(sampler)
         figures = {"card": measure(network, held_out, square, seed + 1),

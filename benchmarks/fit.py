@@ -158,9 +158,10 @@ def verdicts(f: dict) -> str:
 def report(results: list[dict], args) -> str:
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text()
                 .splitlines() if l.startswith("model name")), platform.processor())
-    runs = sorted({r.get("command", "") for r in results if r.get("command")})
+    runs = sorted({(r["command"], r.get("note", "")) for r in results if r.get("command")})
     lines = ["# Fitting built-in samplers from files, as a new user would", "",
-             "Made by " + "; ".join(f"({i}) `{c}`" for i, c in enumerate(runs, 1)) + f" on {cpu} "
+             "Made by " + "; ".join(f"({i}) `{c}`" + (f" ({n})" if n else "")
+                                    for i, (c, n) in enumerate(runs, 1)) + f" on {cpu} "
              f"({os.cpu_count()} cores) (each row names its run), each fit "
              "one process with one thread, default settings otherwise. Each case's sets are "
              "drawn from the built-in sampler, written to files (`.npy`, or one `x y` text file "
@@ -171,11 +172,14 @@ def report(results: list[dict], args) -> str:
              "fits' own, in [fit/](fit/) (`CASE.report.md` and `.png`).", "",
              "| case | run | wall time | training | spectrum MAE (floor) | target | "
              "smallest distance | star L2 | verdicts |", "|---|---|---|---|---|---|---|---|---|"]
+    def run_of(r: dict) -> int:
+        return runs.index((r["command"], r.get("note", ""))) + 1
+
     for r in results:
         if r["case"] == "memory":
             continue
         if "error" in r:
-            lines.append(f"| {r['case']} | {runs.index(r['command']) + 1} | "
+            lines.append(f"| {r['case']} | {run_of(r)} | "
                          f"{r['wall_s'] / 60:.1f} min | | failed: {r['error']} | | | | |")
             continue
         f = r["figures"].get("1024") or r["figures"][max(r["figures"], key=int)]
@@ -186,7 +190,7 @@ def report(results: list[dict], args) -> str:
                                           " **missed**")) if r["target"] else \
             f"<= 2x floor: {'met' if spec['generated'] <= 2 * spec['noise'] else '**missed**'}"
         lines.append(f"| {r['case']}{' (--init ' + r['init'] + ')' if r['init'] else ''} | "
-                     f"{runs.index(r['command']) + 1} | {r['wall_s'] / 60:.1f} min"
+                     f"{run_of(r)} | {r['wall_s'] / 60:.1f} min"
                      f"{' (resumed: ' + r['trained'] + ' earlier; export, calibration, report now)' if r.get('resumed') else ''} | {training(r)} | {spec['generated']:.4f} ({spec['noise']:.4f})"
                      f" | {target} | {relative(mind)} | {relative(l2)} | {verdicts(f)} |")
     missing = [c for c in list(CASES) + ["memory"] if c not in {r["case"] for r in results}]
@@ -210,6 +214,8 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=20.0)
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--work", type=Path, default=Path.home() / ".cache" / "diffsampler" / "fit_bench")
+    p.add_argument("--note", default="", help="a sentence on the run for the report (e.g. what "
+                   "else ran on the machine)")
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     fits = [c for c in args.cases if c != "memory"]
@@ -221,7 +227,7 @@ def main() -> None:
     if "memory" in args.cases:
         results.append(memory_case(args.work))
     for r in results:
-        r["command"] = command
+        r["command"], r["note"] = command, args.note
     # the cases not run now keep their earlier rows (each row names the run it comes from)
     stored = ROOT / "benchmarks" / "results" / "fit.json"
     if stored.exists():
