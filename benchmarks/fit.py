@@ -219,7 +219,12 @@ def main() -> None:
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     fits = [c for c in args.cases if c != "memory"]
-    command = "python benchmarks/fit.py " + " ".join(sys.argv[1:])
+    # the note is shown beside the command, not in it
+    argv = sys.argv[1:]
+    if "--note" in argv:
+        i = argv.index("--note")
+        argv = argv[:i] + argv[i + 2:]
+    command = "python benchmarks/fit.py " + " ".join(argv)
     for case in fits:  # one after another: cases of one sampler share their example files
         write_examples(case, args.work)
     with ThreadPoolExecutor(args.jobs) as pool:
