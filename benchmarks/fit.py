@@ -167,9 +167,9 @@ def report(results: list[dict], args) -> str:
              "drawn from the built-in sampler, written to files (`.npy`, or one `x y` text file "
              "a set), then fitted from the files. The training column gives the steps the "
              "budget held and the precision (fit trains with bf16 autocast where the CPU "
-             "computes it natively; rows from before that record float32). Figures at n = 1024 against the held-out "
-             "example sets (never trained or calibrated on); the full per-size reports are the "
-             "fits' own, in [fit/](fit/) (`CASE.report.md` and `.png`).", "",
+             "computes it natively; rows from before that record float32). Figures at "
+             "n = 1024 against the held-out example sets (never trained or calibrated on); the "
+             "full per-size reports are the fits' own, in [fit/](fit/) (`CASE.report.md` and `.png`).", "",
              "| case | run | wall time | training | spectrum MAE (floor) | target | "
              "smallest distance | star L2 | verdicts |", "|---|---|---|---|---|---|---|---|---|"]
     def run_of(r: dict) -> int:
@@ -219,12 +219,8 @@ def main() -> None:
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     fits = [c for c in args.cases if c != "memory"]
-    # the note is shown beside the command, not in it
-    argv = sys.argv[1:]
-    if "--note" in argv:
-        i = argv.index("--note")
-        argv = argv[:i] + argv[i + 2:]
-    command = "python benchmarks/fit.py " + " ".join(argv)
+    command = (f"python benchmarks/fit.py --cases {' '.join(args.cases)} "  # the note apart
+               f"--minutes {args.minutes:g} --jobs {args.jobs}")
     for case in fits:  # one after another: cases of one sampler share their example files
         write_examples(case, args.work)
     with ThreadPoolExecutor(args.jobs) as pool:
